@@ -1,0 +1,387 @@
+"""One long-lived Moonraker WebSocket session: JSON-RPC calls, subscription, reconnects.
+
+The session identifies itself as an agent, waits while Klippy starts, subscribes to the
+objects it was given and hands every notification to a callback. When the socket drops,
+every pending call fails at once with :class:`PrinterUnreachable` and the session
+reconnects by itself, forever, with capped exponential backoff and jitter; after each
+reconnect (and after ``notify_klippy_ready``) it subscribes again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import random
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Final
+
+import orjson
+import websockets
+from websockets.asyncio.client import ClientConnection
+
+from kybercore.errors import (
+    KlippyNotReady,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterError,
+    PrinterTimeout,
+    PrinterUnreachable,
+)
+from kybercore.printer_state import Status, klippy_state_after
+
+log = logging.getLogger(__name__)
+
+# Enough for Klippy's `configfile` object, small enough that a runaway frame cannot eat memory.
+MAX_FRAME_BYTES: Final = 8 * 1024 * 1024
+# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT seconds.
+PING_INTERVAL: Final = 5.0
+PING_TIMEOUT: Final = 5.0
+OPEN_TIMEOUT: Final = 5.0
+CALL_TIMEOUT: Final = 10.0
+# While Klippy starts, Moonraker's guide asks clients to poll server.info every 2 s.
+KLIPPY_POLL_SECONDS: Final = 2.0
+# Wrong credentials will not fix themselves: retry slowly so Moonraker is not hammered.
+AUTH_RETRY_SECONDS: Final = 60.0
+_SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
+
+Connect = Callable[..., Any]
+"""Factory with the signature of :func:`websockets.asyncio.client.connect` (injectable)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectionChanged:
+    """The session's link to Moonraker changed: ``connecting|online|offline|auth_failed``."""
+
+    connection: str
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class KlippyChanged:
+    """Klippy's state as Moonraker reports it: ``ready|startup|shutdown|error|disconnected``."""
+
+    state: str
+    message: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class StatusSnapshot:
+    """The full state of the subscribed objects, sent after every (re)subscription."""
+
+    status: Status
+
+
+@dataclass(frozen=True, slots=True)
+class StatusDelta:
+    """Only the fields that changed (``notify_status_update``)."""
+
+    delta: Status
+    eventtime: float
+
+
+@dataclass(frozen=True, slots=True)
+class Notification:
+    """Any other Moonraker notification (gcode responses, history, file list, ...)."""
+
+    method: str
+    params: list[Any]
+
+
+SessionEvent = ConnectionChanged | KlippyChanged | StatusSnapshot | StatusDelta | Notification
+EventCallback = Callable[[SessionEvent], None]
+
+
+class Backoff:
+    """Exponential backoff with full jitter, capped, reset after a healthy period."""
+
+    def __init__(self, base: float = 0.5, cap: float = 30.0, healthy_after: float = 30.0) -> None:
+        self.base = base
+        self.cap = cap
+        self.healthy_after = healthy_after
+        self._attempt = 0
+
+    def next_delay(self, connected_for: float) -> float:
+        """Delay before the next attempt, given how long the last connection lasted."""
+        if connected_for >= self.healthy_after:
+            self._attempt = 0
+        ceiling = min(self.cap, self.base * 2**self._attempt)
+        self._attempt += 1
+        # Full jitter spreads a room of printers that all dropped at once.
+        return float(ceiling / 2 + random.uniform(0, ceiling / 2))
+
+
+class MoonrakerSession:
+    """The WebSocket half of a printer's Moonraker client."""
+
+    def __init__(
+        self,
+        ws_url: str,
+        *,
+        name: str,
+        api_key: str | None,
+        subscription: Mapping[str, list[str] | None],
+        on_event: EventCallback,
+        client_name: str,
+        version: str,
+        connect: Connect = websockets.connect,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.ws_url = ws_url
+        self.name = name
+        self._api_key = api_key
+        self._subscription = dict(subscription)
+        self._on_event = on_event
+        self._client_name = client_name
+        self._version = version
+        self._connect = connect
+        self._backoff = backoff or Backoff()
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future[Any]] = {}
+        self._ws: ClientConnection | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._klippy_event = asyncio.Event()
+        self.connection = "connecting"
+        self.klippy_state = "disconnected"
+        self.last_error = ""
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the background task that keeps the session connected."""
+        if self._task is None or self._task.done():
+            self._task = asyncio.create_task(self._run(), name=f"moonraker-session:{self.name}")
+
+    async def stop(self) -> None:
+        """Close the socket and stop reconnecting."""
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    @property
+    def running(self) -> bool:
+        """Whether the background task is alive."""
+        return self._task is not None and not self._task.done()
+
+    # -- JSON-RPC ----------------------------------------------------------------------
+
+    async def call(
+        self, method: str, params: Mapping[str, Any] | None = None, timeout: float = CALL_TIMEOUT
+    ) -> Any:
+        """Send one JSON-RPC request over the socket and return its ``result``."""
+        ws = self._ws
+        if ws is None:
+            raise PrinterUnreachable(
+                f"not connected to Moonraker at {self.ws_url} ({self.last_error or 'connecting'})",
+                printer=self.name,
+            )
+        req_id = next(self._ids)
+        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        self._pending[req_id] = future
+        request: dict[str, Any] = {"jsonrpc": "2.0", "method": method, "id": req_id}
+        if params is not None:
+            request["params"] = dict(params)
+        try:
+            await ws.send(orjson.dumps(request).decode())
+            return await asyncio.wait_for(future, timeout)
+        except websockets.ConnectionClosed as exc:
+            raise self._unreachable(f"connection closed ({exc})") from exc
+        except TimeoutError as exc:
+            raise PrinterTimeout(
+                f"Moonraker did not answer '{method}' within {timeout:g} s", printer=self.name
+            ) from exc
+        finally:
+            self._pending.pop(req_id, None)
+
+    async def resubscribe(self) -> None:
+        """Subscribe again (for example after changing what to watch)."""
+        result = await self.call("printer.objects.subscribe", {"objects": self._subscription})
+        self._on_event(StatusSnapshot(status=result.get("status", {})))
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _unreachable(self, why: str) -> PrinterUnreachable:
+        return PrinterUnreachable(
+            f"lost the connection to Moonraker at {self.ws_url}: {why}. "
+            "KyberCore reconnects by itself; retry when the printer is back online.",
+            printer=self.name,
+        )
+
+    def _set_connection(self, connection: str, detail: str = "") -> None:
+        if connection != self.connection or detail != self.last_error:
+            self.connection = connection
+            self.last_error = detail
+            self._on_event(ConnectionChanged(connection, detail))
+
+    def _set_klippy(self, state: str, message: str = "") -> None:
+        if state != self.klippy_state:
+            self.klippy_state = state
+            self._on_event(KlippyChanged(state, message))
+
+    async def _run(self) -> None:
+        while True:
+            started = time.monotonic()
+            connected_for = 0.0
+            retry_after: float | None = None
+            try:
+                headers = {"X-Api-Key": self._api_key} if self._api_key else {}
+                async with self._connect(
+                    self.ws_url,
+                    additional_headers=headers,
+                    open_timeout=OPEN_TIMEOUT,
+                    ping_interval=PING_INTERVAL,
+                    ping_timeout=PING_TIMEOUT,
+                    max_size=MAX_FRAME_BYTES,
+                    proxy=None,
+                    compression=None,
+                ) as ws:
+                    started = time.monotonic()
+                    await self._serve(ws)
+            except asyncio.CancelledError:
+                self._drop("KyberCore is stopping this session")
+                raise
+            except websockets.InvalidStatus as exc:
+                status = exc.response.status_code
+                if status in (401, 403):
+                    retry_after = AUTH_RETRY_SECONDS
+                    self._drop(f"Moonraker refused the API key (HTTP {status})", "auth_failed")
+                else:
+                    self._drop(f"Moonraker answered the WebSocket upgrade with HTTP {status}")
+            except PrinterAuthFailed as exc:
+                retry_after = AUTH_RETRY_SECONDS
+                self._drop(exc.message, "auth_failed")
+            except (OSError, TimeoutError, websockets.WebSocketException, PrinterError) as exc:
+                self._drop(_describe(exc))
+            else:
+                self._drop("Moonraker closed the connection")
+            connected_for = time.monotonic() - started
+            delay = self._backoff.next_delay(connected_for)
+            await asyncio.sleep(retry_after if retry_after is not None else delay)
+
+    def _drop(self, why: str, connection: str = "offline") -> None:
+        """Forget the socket and fail every pending call at once."""
+        self._ws = None
+        error = self._unreachable(why)
+        for future in self._pending.values():
+            if not future.done():
+                future.set_exception(error)
+        self._pending.clear()
+        self._set_klippy("disconnected")
+        self._set_connection(connection, why)
+
+    async def _serve(self, ws: ClientConnection) -> None:
+        self._ws = ws
+        reader = asyncio.create_task(self._read(ws), name=f"moonraker-reader:{self.name}")
+        follower = asyncio.create_task(self._identify_and_follow(), name=f"klippy:{self.name}")
+        try:
+            done, _ = await asyncio.wait({reader, follower}, return_when=asyncio.FIRST_COMPLETED)
+            for task in done:
+                task.result()
+        finally:
+            self._ws = None
+            reader.cancel()
+            follower.cancel()
+            await asyncio.gather(reader, follower, return_exceptions=True)
+
+    async def _identify_and_follow(self) -> None:
+        params: dict[str, Any] = {
+            "client_name": self._client_name,
+            "version": self._version,
+            "type": "agent",
+            "url": "urn:kybercore",
+        }
+        if self._api_key:
+            params["api_key"] = self._api_key
+        await self.call("server.connection.identify", params)
+        self._set_connection("online")
+        await self._follow_klippy()
+
+    async def _follow_klippy(self) -> None:
+        """Poll ``server.info`` until Klippy can be subscribed to, then wait for news."""
+        while True:
+            self._klippy_event.clear()
+            info = await self.call("server.info")
+            state = str(info.get("klippy_state", "disconnected"))
+            if info.get("klippy_connected") and state in _SUBSCRIBABLE_STATES:
+                try:
+                    await self.resubscribe()
+                except (KlippyNotReady, MoonrakerRpcError) as exc:
+                    log.info("%s: subscribe failed, retrying: %s", self.name, exc)
+                    await asyncio.sleep(KLIPPY_POLL_SECONDS)
+                    continue
+                self._set_klippy(state)
+                await self._klippy_event.wait()
+            else:
+                self._set_klippy(state)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
+
+    async def _read(self, ws: ClientConnection) -> None:
+        async for frame in ws:
+            try:
+                message = orjson.loads(frame)
+            except orjson.JSONDecodeError:
+                log.warning("%s: ignored a frame that is not JSON", self.name)
+                continue
+            if isinstance(message, dict):
+                self._dispatch(message)
+
+    def _dispatch(self, message: dict[str, Any]) -> None:
+        if "id" in message and ("result" in message or "error" in message):
+            future = self._pending.get(message["id"]) if isinstance(message["id"], int) else None
+            if future is None or future.done():
+                return
+            error = message.get("error")
+            if error is None:
+                future.set_result(message.get("result"))
+            else:
+                future.set_exception(_rpc_error(error, self.name))
+            return
+        method = message.get("method")
+        if not isinstance(method, str):
+            return
+        params = message.get("params")
+        params = params if isinstance(params, list) else []
+        if method == "notify_status_update":
+            if params and isinstance(params[0], dict):
+                eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
+                self._on_event(StatusDelta(delta=params[0], eventtime=eventtime))
+            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            return
+        if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
+            self._klippy_event.set()
+        if method.startswith("notify_klippy_"):
+            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            return
+        self._on_event(Notification(method, params))
+
+
+def _rpc_error(error: Any, printer: str) -> PrinterError:
+    code = int(error.get("code", -1)) if isinstance(error, dict) else -1
+    text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
+    if code in (401, 403):
+        return PrinterAuthFailed(
+            f"Moonraker refused the API key ({text}). Fix the printer's api_key.", printer=printer
+        )
+    if code == -32601 and text.startswith("Method not found") and "printer." in text:
+        return KlippyNotReady(
+            "Klippy is not connected to Moonraker; wait for it or restart the firmware.",
+            printer=printer,
+        )
+    return MoonrakerRpcError(code, text, printer=printer)
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused (is Moonraker running on that port?)"
+    if isinstance(exc, TimeoutError):
+        return "timed out while connecting"
+    if isinstance(exc, PrinterError):
+        return exc.message
+    text = str(exc) or type(exc).__name__
+    return text

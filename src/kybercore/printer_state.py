@@ -1,0 +1,67 @@
+"""Pure bookkeeping of one printer's live state, fed by Moonraker notifications.
+
+No I/O here: the WebSocket session calls these functions with what it received, and tests
+call them with plain dicts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Final
+
+Status = dict[str, dict[str, Any]]
+"""Printer objects as Moonraker reports them: ``{"extruder": {"temperature": 21.3}, ...}``."""
+
+KLIPPY_STATES: Final = frozenset({"ready", "startup", "shutdown", "error", "disconnected"})
+
+# Which Klippy state each Moonraker notification implies.
+_NOTIFICATION_STATES: Final = {
+    "notify_klippy_ready": "ready",
+    "notify_klippy_shutdown": "shutdown",
+    "notify_klippy_disconnected": "disconnected",
+}
+
+
+def merge_status(snapshot: Status, delta: Mapping[str, Mapping[str, Any]]) -> Status:
+    """Return ``snapshot`` updated with a ``notify_status_update`` delta.
+
+    Moonraker sends only the fields that changed, so nested dicts are merged key by key;
+    anything else (lists such as ``toolhead.position`` included) replaces the old value.
+    The inputs are left untouched.
+    """
+    merged: Status = dict(snapshot)
+    for obj, fields in delta.items():
+        merged[obj] = _deep_merge(merged.get(obj, {}), fields)
+    return merged
+
+
+def _deep_merge(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(old)
+    for key, value in new.items():
+        previous = out.get(key)
+        if isinstance(value, Mapping) and isinstance(previous, Mapping):
+            out[key] = _deep_merge(previous, value)
+        elif isinstance(value, Mapping):
+            out[key] = _deep_merge({}, value)
+        else:
+            out[key] = value
+    return out
+
+
+def klippy_state_after(current: str, method: str, params: list[Any] | None = None) -> str:
+    """The Klippy state after Moonraker sends notification ``method``.
+
+    ``notify_status_update`` may carry ``webhooks.state``, which is authoritative; other
+    notifications leave the state as it was.
+    """
+    if method in _NOTIFICATION_STATES:
+        return _NOTIFICATION_STATES[method]
+    if method == "notify_status_update" and params:
+        first = params[0]
+        if isinstance(first, Mapping):
+            webhooks = first.get("webhooks")
+            if isinstance(webhooks, Mapping):
+                state = webhooks.get("state")
+                if isinstance(state, str) and state in KLIPPY_STATES:
+                    return state
+    return current
