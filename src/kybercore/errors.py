@@ -24,6 +24,9 @@ from __future__ import annotations
 class KyberCoreError(Exception):
     """Base of every error KyberCore raises on purpose."""
 
+    reasons: tuple[dict[str, str], ...] = ()
+    """Validation reasons behind the error, when there are any (code, level, en, es)."""
+
     def __init__(self, message: str) -> None:
         super().__init__(message)
         self.message = message

@@ -35,6 +35,8 @@ REQUEST_TIMEOUT: Final = httpx.Timeout(10.0, connect=3.0)
 # `/printer/gcode/script` answers only when the G-code has run: M109 or G28 take minutes.
 GCODE_TIMEOUT: Final = httpx.Timeout(600.0, connect=3.0)
 UPLOAD_TIMEOUT: Final = httpx.Timeout(300.0, connect=3.0)
+# Pause and cancel wait for the moves already queued (and a G28 in progress) to finish.
+ACTION_TIMEOUT: Final = httpx.Timeout(60.0, connect=3.0)
 
 FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "webhooks": ["state", "state_message"],
@@ -148,19 +150,21 @@ class MoonrakerClient:
 
     async def print_start(self, filename: str) -> None:
         """Start printing ``filename`` (relative to the gcodes root)."""
-        await self._request("POST", "/printer/print/start", params={"filename": filename})
+        await self._request(
+            "POST", "/printer/print/start", params={"filename": filename}, timeout=ACTION_TIMEOUT
+        )
 
     async def print_pause(self) -> None:
         """Pause the running print."""
-        await self._request("POST", "/printer/print/pause")
+        await self._request("POST", "/printer/print/pause", timeout=ACTION_TIMEOUT)
 
     async def print_resume(self) -> None:
         """Resume a paused print."""
-        await self._request("POST", "/printer/print/resume")
+        await self._request("POST", "/printer/print/resume", timeout=ACTION_TIMEOUT)
 
     async def print_cancel(self) -> None:
         """Cancel the current print."""
-        await self._request("POST", "/printer/print/cancel")
+        await self._request("POST", "/printer/print/cancel", timeout=ACTION_TIMEOUT)
 
     async def emergency_stop(self) -> None:
         """Stop the machine now (``/printer/emergency_stop``, never ``M112`` queued as G-code)."""
@@ -168,11 +172,11 @@ class MoonrakerClient:
 
     async def restart(self) -> None:
         """Restart Klippy's host software (re-reads printer.cfg)."""
-        await self._request("POST", "/printer/restart")
+        await self._request("POST", "/printer/restart", timeout=ACTION_TIMEOUT)
 
     async def firmware_restart(self) -> None:
         """Restart the MCU firmware and Klippy; the way out of ``shutdown``."""
-        await self._request("POST", "/printer/firmware_restart")
+        await self._request("POST", "/printer/firmware_restart", timeout=ACTION_TIMEOUT)
 
     # -- files -------------------------------------------------------------------------
 
@@ -293,8 +297,9 @@ def _http_error(response: httpx.Response, path: str, printer: str) -> PrinterErr
             "Set the printer's api_key to the key from Moonraker's /access/api_key.",
             printer=printer,
         )
-    if status == 404 and path.startswith("/printer/"):
-        # Klippy registers the /printer/* endpoints, so they 404 until it first connects.
+    if path.startswith("/printer/") and (status == 404 or "klippy" in message.lower()):
+        # Klippy registers the /printer/* endpoints, so they 404 until it first connects;
+        # once known, they answer 503 "Klippy Host not connected" while it is away.
         return KlippyNotReady(
             "Klippy is not connected to Moonraker yet. Wait for it to start, or check "
             "klippy.log on the printer.",
@@ -304,15 +309,17 @@ def _http_error(response: httpx.Response, path: str, printer: str) -> PrinterErr
 
 
 def _transport_problem(base_url: str, exc: httpx.TransportError) -> str:
-    text = str(exc)
-    lowered = text.lower()
+    causes = []
+    cause: BaseException | None = exc
+    while cause is not None:
+        causes.append(cause)
+        cause = cause.__cause__ or cause.__context__
+    lowered = " ".join(str(c) for c in causes).lower()
+    if any(isinstance(c, ConnectionRefusedError) for c in causes) or "refused" in lowered:
+        return f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
     if "name or service not known" in lowered or "name resolution" in lowered:
         return (
             f"the host name in {base_url} cannot be resolved. Check the printer's URL "
             "or use its IP address."
         )
-    if "refused" in lowered:
-        return (
-            f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
-        )
-    return f"cannot reach Moonraker at {base_url} ({text or type(exc).__name__}). Retry later."
+    return f"cannot reach Moonraker at {base_url} ({exc or type(exc).__name__}). Retry later."

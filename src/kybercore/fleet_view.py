@@ -1,0 +1,175 @@
+"""The fused view of a printer: its configuration plus its live state, as plain data.
+
+Pure functions only. The fleet service keeps a :class:`LivePrinter` per printer, fed by the
+Moonraker session; :func:`fuse` turns config + live state into the JSON-ready dict that
+``GET /api/printers`` and the browser WebSocket send, and :func:`diff` finds what changed
+between two such dicts so only that goes over the wire.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from kybercore.printer_config import PrinterConfig
+from kybercore.printer_state import Status
+from kybercore.validation import PrinterFacts, allowed_actions
+
+View = dict[str, Any]
+
+
+@dataclass
+class LivePrinter:
+    """What KyberCore knows right now about one printer, from Moonraker."""
+
+    connection: str = "connecting"
+    connection_error: str = ""
+    klippy_state: str = "disconnected"
+    klippy_message: str = ""
+    status: Status = field(default_factory=dict)
+    file_meta: dict[str, Any] | None = None
+    """Metadata of the file in ``print_stats.filename`` (for ETA and thumbnail)."""
+    detected: dict[str, Any] = field(default_factory=dict)
+    """Capabilities read from Klippy's configfile: build_volume, nozzle_diameter, max temps."""
+    updated_at: float = 0.0
+
+
+def _num(value: Any, digits: int = 1) -> float | None:
+    return round(float(value), digits) if isinstance(value, int | float) else None
+
+
+def capabilities(config: PrinterConfig, live: LivePrinter) -> dict[str, Any]:
+    """What validation uses: printers.json's values, else what Klippy reports."""
+    configured = config.capabilities.model_dump(mode="json")
+    return {
+        key: value if value is not None else live.detected.get(key)
+        for key, value in configured.items()
+    }
+
+
+def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
+    """The inputs of :mod:`kybercore.validation` for this printer."""
+    caps = capabilities(config, live)
+    volume = caps.get("build_volume")
+    toolhead = live.status.get("toolhead", {})
+    minimum = toolhead.get("axis_minimum")
+    return PrinterFacts(
+        connection=live.connection,
+        klippy_state=live.klippy_state,
+        print_state=str(live.status.get("print_stats", {}).get("state", "")),
+        model=config.model,
+        build_volume=(volume["x"], volume["y"], volume["z"]) if volume else None,
+        axis_minimum=tuple(minimum[:3])
+        if isinstance(minimum, list) and len(minimum) >= 3
+        else None,
+        nozzle_diameter=caps.get("nozzle_diameter"),
+        material=caps.get("material"),
+        max_extruder_temp=caps.get("max_extruder_temp"),
+        max_bed_temp=caps.get("max_bed_temp"),
+    )
+
+
+def eta_seconds(
+    progress: float, print_duration: float, estimated_time: float | None
+) -> float | None:
+    """Seconds left in a print.
+
+    The slicer's estimate scaled by what is left is steadier early on; once a few percent
+    are done, the measured pace (what Mainsail calls the "file" estimate) is blended in.
+    """
+    if progress <= 0:
+        return estimated_time
+    if progress >= 1:
+        return 0.0
+    by_pace = print_duration / progress - print_duration
+    if not estimated_time:
+        return by_pace if progress >= 0.01 else None
+    by_slicer = estimated_time * (1 - progress)
+    weight = min(progress / 0.2, 1.0)
+    return by_slicer * (1 - weight) + by_pace * weight
+
+
+def fuse(config: PrinterConfig, live: LivePrinter) -> View:
+    """The printer as the API and the browser see it. Never contains the API key."""
+    status = live.status
+    stats = status.get("print_stats", {})
+    sdcard = status.get("virtual_sdcard", {})
+    display = status.get("display_status", {})
+    toolhead = status.get("toolhead", {})
+    info = stats.get("info") or {}
+    print_state = str(stats.get("state", "")) if live.klippy_state == "ready" else ""
+    filename = stats.get("filename") or ""
+    progress = float(display.get("progress") or sdcard.get("progress") or 0.0)
+    meta = live.file_meta if live.file_meta and live.file_meta.get("filename") == filename else {}
+    estimated = meta.get("estimated_time")
+    duration = float(stats.get("print_duration") or 0.0)
+    eta = (
+        eta_seconds(progress, duration, estimated)
+        if print_state in ("printing", "paused")
+        else None
+    )
+    thumbs = meta.get("thumbnails") or []
+    thumbnail = (
+        max(thumbs, key=lambda t: t.get("width", 0)).get("relative_path") if thumbs else None
+    )
+    position = toolhead.get("position")
+    view: View = config.public().model_dump(mode="json")
+    view["capabilities"] = capabilities(config, live)
+    view.update(
+        connection=live.connection,
+        connection_error=live.connection_error,
+        klippy_state=live.klippy_state,
+        klippy_message=live.klippy_message,
+        job={
+            "state": print_state,
+            "filename": filename,
+            "progress": round(progress, 4),
+            "eta_seconds": round(eta) if eta is not None else None,
+            "estimated_time": estimated,
+            "print_duration": round(duration),
+            "total_duration": round(float(stats.get("total_duration") or 0.0)),
+            "message": stats.get("message") or display.get("message") or "",
+            "layer": info.get("current_layer"),
+            "total_layers": info.get("total_layer"),
+            "thumbnail": thumbnail,
+        },
+        extruder=_heater(status.get("extruder", {})),
+        bed=_heater(status.get("heater_bed", {})),
+        toolhead={
+            "position": [round(float(v), 2) for v in position[:4]]
+            if isinstance(position, list)
+            else None,
+            "homed_axes": toolhead.get("homed_axes", ""),
+        },
+        fan_speed=_num(status.get("fan", {}).get("speed"), 2),
+        speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),
+        actions=allowed_actions(facts(config, live)),
+        updated_at=round(live.updated_at, 1),
+    )
+    return view
+
+
+def _heater(obj: Mapping[str, Any]) -> dict[str, float | None]:
+    return {
+        "temperature": _num(obj.get("temperature")),
+        "target": _num(obj.get("target")),
+        "power": _num(obj.get("power"), 2),
+    }
+
+
+def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    """A patch that turns ``old`` into ``new`` when deep-merged (lists replace).
+
+    Keys never disappear from a view, so a patch only sets; it is empty when nothing changed.
+    """
+    patch: dict[str, Any] = {}
+    for key, value in new.items():
+        previous = old.get(key)
+        if isinstance(value, dict) and isinstance(previous, dict):
+            inner = diff(previous, value)
+            if inner:
+                patch[key] = inner
+        elif value != previous or key not in old:
+            patch[key] = value
+    return patch
