@@ -174,10 +174,16 @@ class PrinterStack:
                     state = info["klippy_state"]
                     if state == "ready":
                         return
+                    if state == "error":
+                        # A config error is final: Klippy waits for a RESTART that won't come.
+                        info = http.get(f"{self.url}/printer/info").json()["result"]
+                        state = f"error: {info.get('state_message', '').strip()}"
+                        break
                 time.sleep(0.1)
+            else:
+                state = f"{state} after {timeout:g} s"
         raise ConfigError(
-            f"{self.options.name}: Klippy did not become ready within {timeout:g} s "
-            f"(state: {state}).\n{self._tails()}"
+            f"{self.options.name}: Klippy did not become ready (state: {state}).\n{self._tails()}"
         )
 
     # -- internals ---------------------------------------------------------------------

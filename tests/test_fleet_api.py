@@ -1,0 +1,231 @@
+"""The fleet backend end to end: a real `kybercore serve` over real Moonraker + Klippy printers,
+driven through its REST API and watched through `/ws` as a browser would."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import AsyncIterator, Callable
+
+import httpx
+import pytest
+
+from kybercore.registry import read_printers
+from kybercore.sim.stack import PrinterStack, free_port
+from tests.browser_mirror import BrowserMirror
+from tests.helpers import KyberCoreServer, travel_gcode
+
+pytestmark = pytest.mark.integration
+
+FLEET = ("fleet-a", "fleet-b", "fleet-c")
+SECRET = "sk-kybercore-test-SECRET-" + uuid.uuid4().hex
+
+
+@pytest.fixture
+async def api(kybercore_server: KyberCoreServer) -> AsyncIterator[httpx.AsyncClient]:
+    async with httpx.AsyncClient(base_url=kybercore_server.url, timeout=60) as client:
+        yield client
+
+
+@pytest.fixture
+async def mirror(kybercore_server: KyberCoreServer) -> AsyncIterator[BrowserMirror]:
+    async with BrowserMirror(kybercore_server.ws_url) as browser:
+        yield browser
+
+
+def job_state(mirror: BrowserMirror, printer: str) -> Callable[[], str]:
+    return lambda: str(mirror.printers.get(printer, {}).get("job", {}).get("state", ""))
+
+
+async def test_fleet_view_shows_every_printer_live(
+    api: httpx.AsyncClient, mirror: BrowserMirror
+) -> None:
+    # Klippy reports its first thermistor readings a moment after `ready`.
+    await mirror.wait(
+        lambda: all((mirror.printers[p]["bed"]["temperature"] or 0) > 10 for p in FLEET),
+        what="live temperatures",
+    )
+    views = (await api.get("/api/printers")).json()
+    assert tuple(v["id"] for v in views[:3]) == FLEET
+    for view in views[:3]:
+        assert view["connection"] == "online"
+        assert view["klippy_state"] == "ready"
+        assert view["extruder"]["temperature"] == pytest.approx(25, abs=5)
+        assert view["bed"]["temperature"] == pytest.approx(25, abs=5)
+    # Limits read from each printer's own Klippy configfile, once it is connected.
+    await mirror.wait(
+        lambda: all(mirror.printers[p]["capabilities"]["build_volume"] for p in FLEET),
+        what="capabilities from configfile",
+    )
+    heights = [mirror.printers[p]["capabilities"]["build_volume"]["z"] for p in FLEET]
+    assert heights == [250, 400, 180]
+    assert mirror.printers["fleet-c"]["capabilities"]["nozzle_diameter"] == 0.6
+
+    # A status change on one printer reaches the browser in under a second.
+    answer = await api.post("/api/printers/fleet-a/gcode", json={"script": "M104 S45"})
+    assert answer.status_code == 200, answer.text
+    sent = time.monotonic()
+    try:
+        took = await mirror.wait(
+            lambda: mirror.printers["fleet-a"]["extruder"]["target"] == 45, what="target 45"
+        )
+        assert took < 1.0
+        assert time.monotonic() - sent < 1.0
+    finally:
+        await api.post("/api/printers/fleet-a/gcode", json={"script": "M104 S0"})
+
+
+async def test_start_pause_resume_cancel_through_rest(
+    api: httpx.AsyncClient, mirror: BrowserMirror
+) -> None:
+    name = f"job-{uuid.uuid4().hex[:6]}.gcode"
+    upload = await api.post(
+        "/api/printers/fleet-b/files", files={"file": (name, travel_gcode(moves=40))}
+    )
+    assert upload.status_code == 201, upload.text
+    assert name in [f["path"] for f in (await api.get("/api/printers/fleet-b/files")).json()]
+
+    async def act(action: str, expected: str, **body: object) -> None:
+        answer = await api.post(f"/api/printers/fleet-b/actions/{action}", json=body)
+        assert answer.status_code == 200, answer.text
+        assert answer.json()["ok"] is True
+        await mirror.wait(lambda: job_state(mirror, "fleet-b")() == expected, what=expected)
+        view = (await api.get("/api/printers/fleet-b")).json()
+        assert view["job"]["state"] == expected
+
+    await act("start", "printing", filename=name)
+    view = (await api.get("/api/printers/fleet-b")).json()
+    assert view["job"]["filename"] == name
+    assert view["actions"]["pause"]
+    assert not view["actions"]["start"]
+    await act("pause", "paused")
+    await act("resume", "printing")
+    await act("cancel", "cancelled")
+    actions = [(e["action"], e["ok"]) for e in mirror.events("action", "fleet-b")]
+    assert actions == [
+        ("upload", True),
+        ("start", True),
+        ("pause", True),
+        ("resume", True),
+        ("cancel", True),
+    ]
+
+
+async def test_wrong_state_and_unknown_printer(api: httpx.AsyncClient) -> None:
+    answer = await api.post("/api/printers/fleet-c/actions/pause")
+    assert answer.status_code == 409
+    error = answer.json()["error"]
+    assert error["code"] == "pause_not_printing"
+    assert "nothing to pause" in error["message"].lower()
+    assert error["reasons"][0]["es"]
+    missing = await api.post("/api/printers/no-such-printer/actions/pause")
+    assert missing.status_code == 404
+    assert "no-such-printer" in missing.json()["error"]["message"]
+    bad = await api.post("/api/printers/fleet-c/actions/set_temperature", json={"extruder": 999})
+    assert bad.status_code == 422
+    nothing = await api.post("/api/printers/fleet-c/actions/start", json={"filename": "nope.gcode"})
+    assert nothing.status_code == 422
+    assert "Upload it first" in nothing.json()["error"]["message"]
+
+
+async def test_a_printer_going_offline_and_coming_back(
+    api: httpx.AsyncClient,
+    mirror: BrowserMirror,
+    start_stack: Callable[..., PrinterStack],
+) -> None:
+    stack = start_stack("flaky")
+    added = await api.post(
+        "/api/printers", json={"id": "flaky", "name": "Flaky", "moonraker_url": stack.url}
+    )
+    assert added.status_code == 201, added.text
+    try:
+        await mirror.wait(
+            lambda: mirror.printers.get("flaky", {}).get("klippy_state") == "ready",
+            what="the new printer ready",
+        )
+        stack.stop_moonraker()
+        took = await mirror.wait(
+            lambda: mirror.printers["flaky"]["connection"] == "offline", what="offline"
+        )
+        assert took < 2.0
+        started = time.monotonic()
+        answer = await api.post("/api/printers/flaky/actions/home")
+        assert answer.status_code == 503
+        assert time.monotonic() - started < 1.0
+        assert "reconnects by itself" in answer.json()["error"]["message"]
+        # Other printers are unaffected.
+        assert (await api.get("/api/printers/fleet-a")).json()["connection"] == "online"
+
+        stack.start_moonraker()
+        await mirror.wait(
+            lambda: (
+                mirror.printers["flaky"]["connection"] == "online"
+                and mirror.printers["flaky"]["klippy_state"] == "ready"
+            ),
+            timeout=30,
+            what="back online",
+        )
+        assert (await api.post("/api/printers/flaky/actions/home")).status_code == 200
+    finally:
+        assert (await api.delete("/api/printers/flaky")).status_code == 204
+        stack.stop()
+    await mirror.wait(lambda: "flaky" not in mirror.printers, what="removal over /ws")
+    assert (await api.get("/api/printers/flaky")).status_code == 404
+
+
+async def test_edit_printers_over_rest_and_cli_while_running(
+    api: httpx.AsyncClient, mirror: BrowserMirror, kybercore_server: KyberCoreServer
+) -> None:
+    offline_url = f"http://127.0.0.1:{free_port()}"
+    created = await api.post(
+        "/api/printers",
+        json={"name": "Spare Voron", "moonraker_url": offline_url, "api_key": SECRET},
+    )
+    assert created.status_code == 201, created.text
+    spare = created.json()
+    assert spare["id"] == "spare-voron"
+    assert spare["api_key_set"] is True
+    await mirror.wait(lambda: "spare-voron" in mirror.printers, what="spare over /ws")
+    await mirror.wait(
+        lambda: mirror.printers["spare-voron"]["connection"] == "offline", what="spare offline"
+    )
+
+    edited = await api.patch("/api/printers/spare-voron", json={"name": "Spare", "tags": ["x"]})
+    assert edited.status_code == 200
+    await mirror.wait(lambda: mirror.printers["spare-voron"]["name"] == "Spare", what="rename")
+    invalid = await api.patch("/api/printers/spare-voron", json={"moonraker_url": "ftp://x"})
+    assert invalid.status_code == 422
+    assert "http://" in invalid.json()["error"]["message"]
+
+    cli = [
+        sys.executable,
+        "-m",
+        "kybercore",
+        "printers",
+        "--file",
+        str(kybercore_server.printers_file),
+    ]
+    subprocess.run(
+        [*cli, "add", "CLI Printer", "--url", offline_url, "--id", "from-cli", "--api-key", SECRET],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    await mirror.wait(lambda: "from-cli" in mirror.printers, what="CLI add picked up")
+    subprocess.run([*cli, "edit", "from-cli", "--location", "Shelf 9"], check=True)
+    await mirror.wait(
+        lambda: mirror.printers["from-cli"]["location"] == "Shelf 9", what="CLI edit picked up"
+    )
+    subprocess.run([*cli, "remove", "from-cli", "--yes"], check=True, capture_output=True)
+    await mirror.wait(lambda: "from-cli" not in mirror.printers, what="CLI remove picked up")
+    assert (await api.delete("/api/printers/spare-voron")).status_code == 204
+
+    stored = read_printers(kybercore_server.printers_file)
+    assert [p.id for p in stored] == ["fleet-a", "fleet-b", "fleet-c"]
+    # The key went to printers.json and nowhere else.
+    everything = json.dumps((await api.get("/api/printers")).json()) + "".join(mirror.raw)
+    assert mirror.raw
+    assert SECRET not in everything
+    assert SECRET not in created.text + edited.text
+    assert SECRET not in kybercore_server.log.read_text()
