@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from pydantic import SecretStr
 
 from kybercore.errors import InvalidInput
-from kybercore.fleet_service import detect_capabilities, temperature_gcode
-from kybercore.fleet_view import LivePrinter, diff, eta_seconds, facts, fuse
+from kybercore.fleet_actions import temperature_gcode
+from kybercore.fleet_view import LivePrinter, detect_capabilities, diff, eta_seconds, facts, fuse
 from kybercore.printer_config import BuildVolume, Capabilities, PrinterConfig
 from kybercore.printer_state import merge_status
 

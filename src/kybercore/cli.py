@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ipaddress
 import logging
+import os
 import signal
 import threading
 from pathlib import Path
@@ -11,10 +12,12 @@ from typing import Annotated
 
 import typer
 import uvicorn
+from pydantic import SecretStr
 from rich.console import Console
 from rich.table import Table
 
 from kybercore import __version__
+from kybercore.advisor import AdvisorConfig
 from kybercore.cli_printers import printers_app
 from kybercore.errors import KyberCoreError
 from kybercore.fleet_controller import create_app
@@ -56,15 +59,33 @@ def serve(
     host: Host = "127.0.0.1",
     port: Port = 8000,
     printers_file: PrintersFile = None,
+    advisor_url: Annotated[
+        str | None,
+        typer.Option(
+            envvar="KYBERCORE_ADVISOR_URL",
+            help="OpenAI-compatible chat API that may add warnings to actions (off if unset).",
+        ),
+    ] = None,
+    advisor_model: Annotated[
+        str, typer.Option(envvar="KYBERCORE_ADVISOR_MODEL", help="Model name for the advisor.")
+    ] = "gpt-4o-mini",
 ) -> None:
-    """Serve the dashboard and API for the printers in printers.json."""
+    """Serve the dashboard and API for the printers in printers.json.
+
+    The advisor's API key is read from $KYBERCORE_ADVISOR_KEY (never a command-line flag,
+    which would land in shell history).
+    """
     path = printers_file or default_printers_path()
+    advisor = None
+    if advisor_url:
+        key = os.environ.get("KYBERCORE_ADVISOR_KEY")
+        advisor = AdvisorConfig(advisor_url, SecretStr(key) if key else None, advisor_model)
     try:
         registry = _open_registry(path)
         ensure_port_free(port, host)
     except KyberCoreError as exc:
         raise _fail(exc.message) from None
-    _run_server(registry, host, port)
+    _run_server(registry, host, port, advisor=advisor)
 
 
 @app.command()
@@ -136,7 +157,9 @@ def _open_registry(path: Path) -> PrinterRegistry:
     return registry
 
 
-def _run_server(registry: PrinterRegistry, host: str, port: int) -> None:
+def _run_server(
+    registry: PrinterRegistry, host: str, port: int, advisor: AdvisorConfig | None = None
+) -> None:
     if not _is_loopback(host):
         console.print(
             f"[yellow]Warning:[/yellow] listening on {host}: anyone who can reach this "

@@ -39,7 +39,8 @@ from kybercore.api_models import (
     PrinterView,
 )
 from kybercore.errors import InvalidInput, KyberCoreError
-from kybercore.fleet_service import ActionOutcome, FleetService, failed_outcome
+from kybercore.fleet_actions import ActionOutcome, failed_outcome, reason_dict
+from kybercore.fleet_service import FleetService
 from kybercore.http_errors import error_status
 from kybercore.moonraker_client import new_http_client
 from kybercore.printer_config import PrinterCreate, PrinterUpdate
@@ -116,10 +117,7 @@ def _check(printer_id: str, action: str, verdict: Verdict) -> dict[str, Any]:
         "printer_id": printer_id,
         "action": action,
         "level": verdict.level,
-        "reasons": [
-            {"code": r.code, "level": r.level, "category": r.category, "en": r.en, "es": r.es}
-            for r in verdict.reasons
-        ],
+        "reasons": [reason_dict(r) for r in verdict.reasons],
     }
 
 

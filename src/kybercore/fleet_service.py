@@ -13,26 +13,35 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import httpx
 import websockets
 
+from kybercore.advisor import AdvisorConfig, advise, combine
 from kybercore.errors import (
     ActionRejected,
     ConfigError,
     InvalidInput,
     KyberCoreError,
+    MoonrakerRpcError,
     PrinterAuthFailed,
     PrinterError,
     PrinterUnreachable,
     UnknownPrinter,
 )
+from kybercore.fleet_actions import (
+    ActionOutcome,
+    done_message,
+    execute,
+    failed_outcome,
+    raise_if_blocked,
+    require_confirmation,
+)
 from kybercore.fleet_hub import Hub
-from kybercore.fleet_view import LivePrinter, View, facts, fuse
-from kybercore.http_errors import error_status
+from kybercore.fleet_view import LivePrinter, View, detect_capabilities, facts, fuse
 from kybercore.moonraker_client import MoonrakerClient
 from kybercore.moonraker_session import (
     Connect,
@@ -46,26 +55,12 @@ from kybercore.moonraker_session import (
 from kybercore.printer_config import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.printer_state import merge_status
 from kybercore.registry import PrinterRegistry
-from kybercore.validation import Reason, Verdict, validate
+from kybercore.validation import Verdict, validate
 
 log = logging.getLogger(__name__)
 
 # Settings read once from Klippy's configfile when printers.json does not give them.
 _DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
-
-
-@dataclass
-class ActionOutcome:
-    """What happened when an action ran on one printer."""
-
-    printer_id: str
-    action: str
-    ok: bool
-    status: int
-    message: str
-    code: str = "ok"
-    reasons: list[dict[str, str]] = field(default_factory=list)
-    detail: Any = None
 
 
 @dataclass
@@ -85,11 +80,13 @@ class FleetService:
         *,
         connect: Connect = websockets.connect,
         watch_interval: float = 1.0,
+        advisor: AdvisorConfig | None = None,
     ) -> None:
         self.registry = registry
         self._http = http
         self._connect = connect
         self._watch_interval = watch_interval
+        self._advisor = advisor
         self._printers: dict[str, _Printer] = {}
         self.hub = Hub(self._render)
         self._watcher: asyncio.Task[None] | None = None
@@ -294,24 +291,6 @@ class FleetService:
 
     # -- actions -----------------------------------------------------------------------
 
-    def check(
-        self,
-        printer_id: str,
-        action: str,
-        params: Mapping[str, Any] | None = None,
-        file_meta: Mapping[str, Any] | None = None,
-        force: bool = False,
-    ) -> Verdict:
-        """What validation says about ``action`` on this printer now (no side effects)."""
-        printer = self._get(printer_id)
-        return validate(
-            action,
-            facts(printer.config, printer.live),
-            params=params,
-            file_meta=file_meta,
-            force=force,
-        )
-
     async def dry_run(
         self,
         printer_id: str,
@@ -319,9 +298,16 @@ class FleetService:
         params: Mapping[str, Any] | None = None,
         force: bool = False,
     ) -> Verdict:
-        """Validate with the file's real metadata, without doing anything."""
-        meta = await self._file_meta_for(printer_id, action, params)
-        return self.check(printer_id, action, params, meta, force)
+        """What would happen: the rules (with the file's real metadata) and, when one is
+        configured, the advisor's warnings. Nothing is sent to the printer."""
+        printer = self._get(printer_id)
+        meta = await self._file_meta_for(printer, action, params)
+        printer_facts = facts(printer.config, printer.live)
+        verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
+        if verdict.blocked or self._advisor is None:
+            return verdict
+        advice = await advise(self._http, self._advisor, action, printer_facts, params, meta)
+        return combine(verdict, advice)
 
     async def act(
         self,
@@ -336,34 +322,11 @@ class FleetService:
         params = dict(params or {})
         verdict = await self.dry_run(printer_id, action, params, force)
         raise_if_blocked(verdict, printer_id)
-        warnings = [_reason(r) for r in verdict.reasons if r.level == "warn"]
-        if warnings and not confirm:
-            raise ActionRejected(
-                "This action needs confirmation: "
-                + "; ".join(r["en"] for r in warnings)
-                + " Send it again with confirm=true to go ahead.",
-                code="confirmation_required",
-            )
-        detail = await self._execute(printer_id, action, params)
-        outcome = ActionOutcome(
-            printer_id,
-            action,
-            True,
-            200,
-            _done_message(action, params),
-            reasons=warnings,
-            detail=detail,
-        )
-        self.hub.event(
-            {
-                "type": "action",
-                "printer": printer_id,
-                "action": action,
-                "ok": True,
-                "message": outcome.message,
-            }
-        )
-        return outcome
+        warnings = require_confirmation(verdict, confirm)
+        await execute(self.client(printer_id), action, params)
+        message = done_message(action, params)
+        self._announce(printer_id, action, message)
+        return ActionOutcome(printer_id, action, True, 200, message, reasons=warnings)
 
     async def act_many(
         self,
@@ -375,8 +338,6 @@ class FleetService:
         confirm: bool = False,
     ) -> list[ActionOutcome]:
         """One action on many printers at once; one outcome per printer, in order."""
-        if not printer_ids:
-            raise InvalidInput("printer_ids is empty: name at least one printer.")
 
         async def one(printer_id: str) -> ActionOutcome:
             try:
@@ -394,33 +355,23 @@ class FleetService:
         *,
         start: bool = False,
         confirm: bool = False,
-        force: bool = False,
     ) -> ActionOutcome:
         """Upload a file; with ``start``, validate it against the printer and print it."""
         client = self.client(printer_id)
         if start:
             # Refuse before sending the bytes when the printer cannot start anything now.
-            verdict = self.check(printer_id, "start", {"filename": filename}, None, force)
-            raise_if_blocked(verdict, printer_id)
-        result = await client.upload(filename, content)
-        outcome = ActionOutcome(
-            printer_id, "upload", True, 201, f"Uploaded {filename}.", detail=result
-        )
-        if start:
-            started = await self.act(
-                printer_id, "start", {"filename": filename}, force=force, confirm=confirm
+            printer = self._get(printer_id)
+            verdict = validate(
+                "start", facts(printer.config, printer.live), params={"filename": filename}
             )
+            raise_if_blocked(verdict, printer_id)
+        await client.upload(filename, content)
+        outcome = ActionOutcome(printer_id, "upload", True, 201, f"Uploaded {filename}.")
+        self._announce(printer_id, "upload", outcome.message)
+        if start:
+            started = await self.act(printer_id, "start", {"filename": filename}, confirm=confirm)
             outcome.message += " " + started.message
             outcome.reasons = started.reasons
-        self.hub.event(
-            {
-                "type": "action",
-                "printer": printer_id,
-                "action": "upload",
-                "ok": True,
-                "message": outcome.message,
-            }
-        )
         return outcome
 
     async def files(self, printer_id: str) -> list[dict[str, Any]]:
@@ -432,122 +383,33 @@ class FleetService:
         """Moonraker's metadata of one file."""
         return await self.client(printer_id).file_metadata(filename)
 
+    def _announce(self, printer_id: str, action: str, message: str) -> None:
+        event = {"type": "action", "printer": printer_id, "action": action, "ok": True}
+        self.hub.event({**event, "message": message})
+
     async def _file_meta_for(
-        self, printer_id: str, action: str, params: Mapping[str, Any] | None
+        self, printer: _Printer, action: str, params: Mapping[str, Any] | None
     ) -> dict[str, Any] | None:
         filename = (params or {}).get("filename")
         if action != "start" or not isinstance(filename, str) or not filename:
             return None
-        printer = self._get(printer_id)
         if printer.client is None or printer.live.connection != "online":
-            return None
+            return None  # validation reports the connection problem
         try:
             return await printer.client.file_metadata(filename)
-        except PrinterError as exc:
-            if getattr(exc, "code", None) == 404:
+        except MoonrakerRpcError as exc:
+            if exc.code == 404:
                 raise InvalidInput(
-                    f"{printer_id}: no file '{filename}' on the printer. "
+                    f"{printer.config.id}: no file '{filename}' on the printer. "
                     "Upload it first or pick one from the file list."
                 ) from exc
             raise
-
-    async def _execute(self, printer_id: str, action: str, params: Mapping[str, Any]) -> Any:
-        client = self.client(printer_id)
-        simple: dict[str, Callable[[], Awaitable[None]]] = {
-            "pause": client.print_pause,
-            "resume": client.print_resume,
-            "cancel": client.print_cancel,
-            "emergency_stop": client.emergency_stop,
-            "firmware_restart": client.firmware_restart,
-            "restart": client.restart,
-        }
-        if action in simple:
-            await simple[action]()
-            return None
-        if action == "start":
-            await client.print_start(str(params["filename"]))
-            return None
-        if action == "home":
-            axes = str(params.get("axes") or "").upper()
-            return await client.gcode_script("G28" + "".join(f" {a}" for a in axes if a in "XYZ"))
-        if action == "set_temperature":
-            return await client.gcode_script(temperature_gcode(params))
-        if action == "gcode":
-            return await client.gcode_script(str(params["script"]))
-        raise InvalidInput(f"Unknown action '{action}'.")
 
     def _get(self, printer_id: str) -> _Printer:
         printer = self._printers.get(printer_id)
         if printer is None:
             raise UnknownPrinter(printer_id)
         return printer
-
-
-def detect_capabilities(settings: Mapping[str, Any]) -> dict[str, Any]:
-    """Build volume, nozzle and heater limits from Klippy's ``configfile.settings``."""
-    detected: dict[str, Any] = {}
-    with contextlib.suppress(KeyError, TypeError, ValueError):
-        detected["build_volume"] = {
-            axis: float(settings[f"stepper_{axis}"]["position_max"]) for axis in ("x", "y", "z")
-        }
-    extruder = settings.get("extruder", {})
-    bed = settings.get("heater_bed", {})
-    if "nozzle_diameter" in extruder:
-        detected["nozzle_diameter"] = float(extruder["nozzle_diameter"])
-    if "max_temp" in extruder:
-        detected["max_extruder_temp"] = float(extruder["max_temp"])
-    if "max_temp" in bed:
-        detected["max_bed_temp"] = float(bed["max_temp"])
-    return detected
-
-
-def temperature_gcode(params: Mapping[str, Any]) -> str:
-    """``{"extruder": 200, "bed": 60}`` -> ``M104 S200`` / ``M140 S60`` (no waiting)."""
-    lines = []
-    if params.get("extruder") is not None:
-        lines.append(f"M104 S{float(params['extruder']):g}")
-    if params.get("bed") is not None:
-        lines.append(f"M140 S{float(params['bed']):g}")
-    if not lines:
-        raise InvalidInput("Give 'extruder' and/or 'bed' temperatures in °C.")
-    return "\n".join(lines)
-
-
-def raise_if_blocked(verdict: Verdict, printer_id: str) -> None:
-    """Turn a blocking verdict into the error its category calls for."""
-    blocking = [r for r in verdict.reasons if r.level == "block"]
-    if not blocking:
-        return
-    message = f"{printer_id}: " + " ".join(r.en for r in blocking)
-    category = verdict.blocking_category
-    error: KyberCoreError
-    if category == "connection":
-        auth = any(r.code == "printer_auth_failed" for r in blocking)
-        error = PrinterAuthFailed(message) if auth else PrinterUnreachable(message)
-    elif category in ("limit", "compatibility"):
-        error = InvalidInput(message)
-    else:
-        error = ActionRejected(message, code=blocking[0].code)
-    error.reasons = tuple(_reason(r) for r in verdict.reasons)
-    raise error
-
-
-def failed_outcome(printer_id: str, action: str, exc: KyberCoreError) -> ActionOutcome:
-    """The outcome of an action that raised ``exc``."""
-    status, code = error_status(exc)
-    return ActionOutcome(
-        printer_id, action, False, status, exc.message, code=code, reasons=list(exc.reasons)
-    )
-
-
-def _reason(reason: Reason) -> dict[str, str]:
-    return {
-        "code": reason.code,
-        "level": reason.level,
-        "category": reason.category,
-        "en": reason.en,
-        "es": reason.es,
-    }
 
 
 def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
@@ -575,21 +437,3 @@ def _require_online(printer: _Printer) -> None:
             f"{pid} is {live.connection}: {live.connection_error or 'not connected yet'}. "
             "KyberCore reconnects by itself; retry when it is online."
         )
-
-
-_DONE = {
-    "start": "Print started: {filename}.",
-    "pause": "Print paused.",
-    "resume": "Print resumed.",
-    "cancel": "Print cancelled.",
-    "emergency_stop": "Emergency stop sent: Klippy is shut down. Use firmware restart to recover.",
-    "firmware_restart": "Firmware restart sent.",
-    "restart": "Klippy restart sent.",
-    "home": "Homed.",
-    "set_temperature": "Temperatures set.",
-    "gcode": "G-code done.",
-}
-
-
-def _done_message(action: str, params: Mapping[str, Any]) -> str:
-    return _DONE.get(action, "Done.").format(filename=params.get("filename", ""))

@@ -8,6 +8,7 @@ between two such dicts so only that goes over the wire.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -173,3 +174,21 @@ def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
         elif value != previous or key not in old:
             patch[key] = value
     return patch
+
+
+def detect_capabilities(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Build volume, nozzle and heater limits from Klippy's ``configfile.settings``."""
+    detected: dict[str, Any] = {}
+    with contextlib.suppress(KeyError, TypeError, ValueError):
+        detected["build_volume"] = {
+            axis: float(settings[f"stepper_{axis}"]["position_max"]) for axis in ("x", "y", "z")
+        }
+    extruder = settings.get("extruder", {})
+    bed = settings.get("heater_bed", {})
+    if "nozzle_diameter" in extruder:
+        detected["nozzle_diameter"] = float(extruder["nozzle_diameter"])
+    if "max_temp" in extruder:
+        detected["max_extruder_temp"] = float(extruder["max_temp"])
+    if "max_temp" in bed:
+        detected["max_bed_temp"] = float(bed["max_temp"])
+    return detected
