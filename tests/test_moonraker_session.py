@@ -192,3 +192,13 @@ async def test_api_key_over_http_and_websocket_from_an_untrusted_address(
             assert not bad_rec.of(StatusSnapshot)
     finally:
         stack.stop()
+
+
+async def test_a_second_client_with_the_same_agent_name_still_subscribes(
+    printer: PrinterStack, live: Callable[..., tuple[MoonrakerClient, Recorder]]
+) -> None:
+    _first, first_rec = live(printer, client_name="KyberCore twin")
+    await wait_for(lambda: bool(first_rec.of(StatusSnapshot)), what="first subscription")
+    _second, second_rec = live(printer, client_name="KyberCore twin")
+    await wait_for(lambda: bool(second_rec.of(StatusSnapshot)), what="second subscription")
+    assert second_rec.connection() == ["online"]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
+import socket
 from collections.abc import Mapping
 from typing import Any, Final
 from urllib.parse import quote, urlsplit, urlunsplit
@@ -53,6 +55,10 @@ FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
 """What the fleet view needs. ``configfile`` is large: query it once, never subscribe."""
 
 
+# Moonraker keeps one agent per name: two KyberCore processes on one printer must differ.
+AGENT_NAME: Final = f"KyberCore {socket.gethostname()}:{os.getpid()}"
+
+
 def new_http_client() -> httpx.AsyncClient:
     """The one HTTP client a process shares across all its printers."""
     # trust_env=False: printers live on the LAN; a desktop proxy setting must not apply.
@@ -87,7 +93,7 @@ class MoonrakerClient:
         api_key: str | None = None,
         on_event: EventCallback | None = None,
         subscription: Mapping[str, list[str] | None] = FLEET_OBJECTS,
-        client_name: str = "KyberCore",
+        client_name: str = AGENT_NAME,
         connect: Connect = websockets.connect,
     ) -> None:
         self.base_url = base_url.rstrip("/")

@@ -300,7 +300,14 @@ class MoonrakerSession:
         }
         if self._api_key:
             params["api_key"] = self._api_key
-        await self.call("server.connection.identify", params)
+        try:
+            await self.call("server.connection.identify", params)
+        except MoonrakerRpcError as exc:
+            # Agent names are unique per Moonraker; a stale socket of ours (or another
+            # KyberCore) may hold it. Moonraker still accepts this connection as a client.
+            if "already registered" not in exc.detail:
+                raise
+            log.info("%s: agent name in use, continuing as a plain client", self.name)
         self._set_connection("online")
         await self._follow_klippy()
 
