@@ -6,6 +6,7 @@ import asyncio
 import functools
 import time
 from collections.abc import AsyncIterator, Callable
+from typing import Any
 
 import httpx
 import pytest
@@ -52,14 +53,12 @@ async def live(
     """Start sessions for a test and close them afterwards."""
     clients: list[MoonrakerClient] = []
 
-    def open_session(stack: PrinterStack, **kwargs: object) -> tuple[MoonrakerClient, Recorder]:
+    def open_session(
+        stack: PrinterStack, *, via: httpx.AsyncClient | None = None, **options: Any
+    ) -> tuple[MoonrakerClient, Recorder]:
         recorder = Recorder()
         client = MoonrakerClient(
-            stack.url,
-            kwargs.pop("http", http),  # type: ignore[arg-type]
-            name=stack.options.name,
-            on_event=recorder,
-            **kwargs,  # type: ignore[arg-type]
+            stack.url, via or http, name=stack.options.name, on_event=recorder, **options
         )
         client.start()
         clients.append(client)
@@ -179,13 +178,13 @@ async def test_api_key_over_http_and_websocket_from_an_untrusted_address(
             with pytest.raises(PrinterAuthFailed):
                 await anonymous.server_info()
 
-            good, good_rec = live(stack, http=untrusted, api_key=key, connect=connect)
+            good, good_rec = live(stack, via=untrusted, api_key=key, connect=connect)
             assert (await good.server_info())["klippy_state"] == "ready"
             await wait_for(
                 lambda: bool(good_rec.of(StatusSnapshot)), what="an authenticated subscription"
             )
 
-            bad, bad_rec = live(stack, http=untrusted, api_key="wrong", connect=connect)
+            bad, bad_rec = live(stack, via=untrusted, api_key="wrong", connect=connect)
             with pytest.raises(PrinterAuthFailed, match="API key"):
                 await bad.server_info()
             await wait_for(lambda: "auth_failed" in bad_rec.connection(), what="auth_failed")
