@@ -229,3 +229,55 @@ async def test_edit_printers_over_rest_and_cli_while_running(
     assert SECRET not in everything
     assert SECRET not in created.text + edited.text
     assert SECRET not in kybercore_server.log.read_text()
+
+
+async def test_console_responses_reach_only_clients_that_asked(
+    api: httpx.AsyncClient, kybercore_server: KyberCoreServer
+) -> None:
+    async with (
+        BrowserMirror(kybercore_server.ws_url) as watcher,
+        BrowserMirror(kybercore_server.ws_url) as other,
+    ):
+        await watcher.send({"type": "console", "printers": ["fleet-c"]})
+        marker = f"kc-{uuid.uuid4().hex[:8]}"
+        # The subscription travels on the socket; retry the echo until it is in effect.
+        for _ in range(20):
+            answer = await api.post(
+                "/api/printers/fleet-c/gcode", json={"script": f"M118 {marker}"}
+            )
+            assert answer.status_code == 200
+            try:
+                await watcher.wait(
+                    lambda: any(marker in e["message"] for e in watcher.events("gcode_response")),
+                    timeout=0.5,
+                )
+                break
+            except AssertionError:
+                continue
+        else:
+            raise AssertionError("no G-code response reached the subscribed client")
+        assert all(e["printer"] == "fleet-c" for e in watcher.events("gcode_response"))
+        assert other.events("gcode_response") == []
+
+
+async def test_openapi_documents_every_endpoint_and_model(api: httpx.AsyncClient) -> None:
+    spec = (await api.get("/openapi.json")).json()
+    paths = set(spec["paths"])
+    assert {
+        "/api/printers",
+        "/api/printers/{printer_id}",
+        "/api/printers/{printer_id}/actions/{action}",
+        "/api/printers/{printer_id}/actions/{action}/check",
+        "/api/printers/{printer_id}/gcode",
+        "/api/printers/{printer_id}/files",
+        "/api/fleet/actions/{action}",
+        "/api/health",
+    } <= paths
+    schemas = spec["components"]["schemas"]
+    for model in ("PrinterView", "PrinterCreate", "PrinterUpdate", "ActionResult", "ErrorResponse"):
+        assert schemas[model].get("description"), f"{model} has no description"
+    for name, field in schemas["PrinterCreate"]["properties"].items():
+        assert field.get("description"), f"PrinterCreate.{name} has no description"
+    for path, methods in spec["paths"].items():
+        for method, operation in methods.items():
+            assert operation.get("description") or operation.get("summary"), (method, path)
