@@ -81,8 +81,8 @@ def serve(
         key = os.environ.get("KYBERCORE_ADVISOR_KEY")
         advisor = AdvisorConfig(advisor_url, SecretStr(key) if key else None, advisor_model)
     try:
-        registry = _open_registry(path)
         ensure_port_free(port, host)
+        registry = _open_registry(path)
     except KyberCoreError as exc:
         raise _fail(exc.message) from None
     _run_server(registry, host, port, advisor=advisor)
