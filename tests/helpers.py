@@ -44,8 +44,9 @@ def travel_gcode(moves: int = 40, feedrate: int = 1200) -> bytes:
 class KyberCoreServer:
     """A `kybercore serve` subprocess on loopback, stoppable and restartable by tests."""
 
-    def __init__(self, printers_file: Path, port: int) -> None:
+    def __init__(self, printers_file: Path, port: int, *extra_args: str) -> None:
         self.printers_file = printers_file
+        self.extra_args = extra_args
         self.port = port
         self.url = f"http://127.0.0.1:{port}"
         self.ws_url = f"ws://127.0.0.1:{port}/ws"
@@ -56,7 +57,7 @@ class KyberCoreServer:
         """Start the server and wait until it answers /api/health."""
         command = [
             sys.executable, "-m", "kybercore", "serve", "--port", str(self.port),
-            "--printers-file", str(self.printers_file),
+            "--printers-file", str(self.printers_file), *self.extra_args,
         ]  # fmt: skip
         with self.log.open("ab") as log:
             self._proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
@@ -65,7 +66,7 @@ class KyberCoreServer:
             if self._proc.poll() is not None:
                 raise AssertionError(f"kybercore serve exited:\n{self.log.read_text()[-3000:]}")
             try:
-                httpx.get(f"{self.url}/api/health", timeout=1).raise_for_status()
+                httpx.get(f"{self.url}/api/session", timeout=1).raise_for_status()
                 return
             except httpx.HTTPError:
                 time.sleep(0.1)

@@ -18,9 +18,12 @@ from rich.table import Table
 
 from kybercore import __version__
 from kybercore.advisor import AdvisorConfig
+from kybercore.auth import TokenStore, access_mode, tokens_path_for
 from kybercore.cli_printers import printers_app
+from kybercore.cli_tokens import tokens_app
 from kybercore.errors import KyberCoreError
 from kybercore.fleet_controller import create_app
+from kybercore.http_access import Access
 from kybercore.registry import PrinterRegistry, default_printers_path, write_printers
 from kybercore.sim.demo import demo_fleet, write_demo_printers
 from kybercore.sim.runtime import ensure_runtimes, kybercore_home
@@ -32,6 +35,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.add_typer(printers_app, name="printers")
+app.add_typer(tokens_app, name="tokens")
 console = Console()
 err = Console(stderr=True)
 
@@ -69,6 +73,9 @@ def serve(
     advisor_model: Annotated[
         str, typer.Option(envvar="KYBERCORE_ADVISOR_MODEL", help="Model name for the advisor.")
     ] = "gpt-4o-mini",
+    log_level: Annotated[
+        str, typer.Option(help="debug, info, warning or error.", case_sensitive=False)
+    ] = "info",
 ) -> None:
     """Serve the dashboard and API for the printers in printers.json.
 
@@ -81,11 +88,12 @@ def serve(
         key = os.environ.get("KYBERCORE_ADVISOR_KEY")
         advisor = AdvisorConfig(advisor_url, SecretStr(key) if key else None, advisor_model)
     try:
+        access = _access(path, host)
         ensure_port_free(port, host)
         registry = _open_registry(path)
     except KyberCoreError as exc:
         raise _fail(exc.message) from None
-    _run_server(registry, host, port, advisor=advisor)
+    _run_server(registry, host, port, access, advisor=advisor, log_level=log_level)
 
 
 @app.command()
@@ -109,11 +117,12 @@ def demo(
             path = folder / "printers.json"
             write_demo_printers(path, stacks)
             registry = _open_registry(path)
+            access = _access(path, host)
             status.stop()
             _print_fleet(stacks)
             console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
-            _run_server(registry, host, port)
+            _run_server(registry, host, port, access)
     except KyberCoreError as exc:
         raise _fail(exc.message) from None
     console.print("Stopped the dashboard and every virtual printer.")
@@ -157,21 +166,34 @@ def _open_registry(path: Path) -> PrinterRegistry:
     return registry
 
 
+def _access(printers_file: Path, host: str) -> Access:
+    """Open on loopback without tokens; tokens otherwise; refuse what would be unsafe."""
+    store = TokenStore(tokens_path_for(printers_file))
+    mode = access_mode(_is_loopback(host), store)
+    if mode == "open":
+        console.print("Open access: listening on loopback and no token exists.")
+    return Access(mode, store)
+
+
 def _run_server(
-    registry: PrinterRegistry, host: str, port: int, advisor: AdvisorConfig | None = None
+    registry: PrinterRegistry,
+    host: str,
+    port: int,
+    access: Access,
+    advisor: AdvisorConfig | None = None,
+    log_level: str = "info",
 ) -> None:
-    if not _is_loopback(host):
-        console.print(
-            f"[yellow]Warning:[/yellow] listening on {host}: anyone who can reach this "
-            "address can control the printers. Access control is not built yet."
-        )
     logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+        level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     # The HTTP client logs every request at INFO; too chatty for a farm of printers.
     logging.getLogger("httpx").setLevel(logging.WARNING)
     uvicorn.run(
-        create_app(registry), host=host, port=port, log_level="warning", ws="websockets-sansio"
+        create_app(registry, access, advisor=advisor),
+        host=host,
+        port=port,
+        log_level="warning",
+        ws="websockets-sansio",
     )
 
 

@@ -41,6 +41,15 @@ from kybercore.api_models import (
 from kybercore.errors import InvalidInput, KyberCoreError
 from kybercore.fleet_actions import ActionOutcome, failed_outcome, reason_dict
 from kybercore.fleet_service import FleetService
+from kybercore.http_access import (
+    Access,
+    AccessDenied,
+    GuardMiddleware,
+    access_denied_handler,
+    add_session_routes,
+    require,
+    websocket_identity,
+)
 from kybercore.http_errors import error_status
 from kybercore.moonraker_client import new_http_client
 from kybercore.printer_config import PrinterCreate, PrinterUpdate
@@ -57,6 +66,11 @@ _ERRORS: Final[dict[int | str, dict[str, Any]]] = {
 }
 
 
+VIEWER: Final = require("viewer")
+OPERATOR: Final = require("operator")
+ADMIN: Final = require("admin")
+
+
 class ORJSONResponse(JSONResponse):
     """JSON answers serialized with orjson: the fleet view is the hot path."""
 
@@ -64,8 +78,10 @@ class ORJSONResponse(JSONResponse):
         return orjson.dumps(content)
 
 
-def create_app(registry: PrinterRegistry, **service_options: Any) -> FastAPI:
-    """The KyberCore ASGI app for the fleet in ``registry``."""
+def create_app(
+    registry: PrinterRegistry, access: Access | None = None, **service_options: Any
+) -> FastAPI:
+    """The KyberCore ASGI app for the fleet in ``registry``; open access unless told."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -85,11 +101,15 @@ def create_app(registry: PrinterRegistry, **service_options: Any) -> FastAPI:
         lifespan=lifespan,
         default_response_class=ORJSONResponse,
     )
+    app.state.access = access or Access("open", None)
+    app.add_middleware(GuardMiddleware)
+    app.add_exception_handler(AccessDenied, access_denied_handler())
     app.add_exception_handler(KyberCoreError, _kybercore_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
     app.add_exception_handler(Exception, _unexpected_error)
     _routes(app)
+    add_session_routes(app)
     if WEB_DIR.is_dir():
         app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
     return app
@@ -126,7 +146,7 @@ def _routes(app: FastAPI) -> None:
     async def index() -> Response:
         return FileResponse(WEB_DIR / "fleet.html", headers={"Cache-Control": "no-cache"})
 
-    @app.get("/api/health", response_model=Health)
+    @app.get("/api/health", response_model=Health, dependencies=[VIEWER])
     async def health(request: Request) -> dict[str, Any]:
         """Liveness plus a one-line picture of the fleet."""
         service = _service(request)
@@ -140,27 +160,42 @@ def _routes(app: FastAPI) -> None:
             "config_error": service.config_error,
         }
 
-    @app.get("/api/printers", responses={200: {"model": list[PrinterView]}})
+    @app.get("/api/printers", responses={200: {"model": list[PrinterView]}}, dependencies=[VIEWER])
     async def list_printers(request: Request) -> Response:
         """Every printer: configuration fused with live state, from the live cache."""
         return ORJSONResponse(_service(request).views())
 
-    @app.post("/api/printers", status_code=201, responses={201: {"model": PrinterView}, **_ERRORS})
+    @app.post(
+        "/api/printers",
+        status_code=201,
+        responses={201: {"model": PrinterView}, **_ERRORS},
+        dependencies=[ADMIN],
+    )
     async def add_printer(request: Request, new: PrinterCreate) -> Response:
         """Add a printer to printers.json and connect to it."""
         return ORJSONResponse(await _service(request).add_printer(new), status_code=201)
 
-    @app.get("/api/printers/{printer_id}", responses={200: {"model": PrinterView}, **_ERRORS})
+    @app.get(
+        "/api/printers/{printer_id}",
+        responses={200: {"model": PrinterView}, **_ERRORS},
+        dependencies=[VIEWER],
+    )
     async def get_printer(request: Request, printer_id: str) -> Response:
         """One printer, fused with its live state."""
         return ORJSONResponse(_service(request).view(printer_id))
 
-    @app.patch("/api/printers/{printer_id}", responses={200: {"model": PrinterView}, **_ERRORS})
+    @app.patch(
+        "/api/printers/{printer_id}",
+        responses={200: {"model": PrinterView}, **_ERRORS},
+        dependencies=[ADMIN],
+    )
     async def edit_printer(request: Request, printer_id: str, patch: PrinterUpdate) -> Response:
         """Edit a printer (PATCH: omitted fields keep their value)."""
         return ORJSONResponse(await _service(request).update_printer(printer_id, patch))
 
-    @app.delete("/api/printers/{printer_id}", status_code=204, responses=_ERRORS)
+    @app.delete(
+        "/api/printers/{printer_id}", status_code=204, responses=_ERRORS, dependencies=[ADMIN]
+    )
     async def remove_printer(request: Request, printer_id: str) -> Response:
         """Remove a printer from printers.json and disconnect from it."""
         await _service(request).remove_printer(printer_id)
@@ -170,6 +205,7 @@ def _routes(app: FastAPI) -> None:
         "/api/printers/{printer_id}/actions/{action}",
         response_model=ActionResult,
         responses=_ERRORS,
+        dependencies=[OPERATOR],
     )
     async def act(
         request: Request, printer_id: str, action: ActionName, body: ActionRequest | None = None
@@ -185,6 +221,7 @@ def _routes(app: FastAPI) -> None:
         "/api/printers/{printer_id}/actions/{action}/check",
         response_model=CheckResult,
         responses=_ERRORS,
+        dependencies=[VIEWER],
     )
     async def check(
         request: Request, printer_id: str, action: ActionName, body: ActionRequest | None = None
@@ -194,7 +231,12 @@ def _routes(app: FastAPI) -> None:
         verdict = await _service(request).dry_run(printer_id, action, body.params(), body.force)
         return _check(printer_id, action, verdict)
 
-    @app.post("/api/printers/{printer_id}/gcode", response_model=ActionResult, responses=_ERRORS)
+    @app.post(
+        "/api/printers/{printer_id}/gcode",
+        response_model=ActionResult,
+        responses=_ERRORS,
+        dependencies=[OPERATOR],
+    )
     async def gcode(request: Request, printer_id: str, body: GcodeRequest) -> dict[str, Any]:
         """Run G-code; answers when it has finished. Responses also stream over /ws."""
         outcome = await _service(request).act(
@@ -202,17 +244,22 @@ def _routes(app: FastAPI) -> None:
         )
         return _outcome(outcome)
 
-    @app.get("/api/printers/{printer_id}/files", response_model=list[FileItem], responses=_ERRORS)
+    @app.get(
+        "/api/printers/{printer_id}/files",
+        response_model=list[FileItem],
+        responses=_ERRORS,
+        dependencies=[VIEWER],
+    )
     async def files(request: Request, printer_id: str) -> list[dict[str, Any]]:
         """The printer's G-code files, newest first."""
         return await _service(request).files(printer_id)
 
-    @app.get("/api/printers/{printer_id}/files/metadata", responses=_ERRORS)
+    @app.get("/api/printers/{printer_id}/files/metadata", responses=_ERRORS, dependencies=[VIEWER])
     async def file_metadata(request: Request, printer_id: str, filename: str) -> dict[str, Any]:
         """What the slicer wrote in a file's header, as Moonraker parsed it."""
         return await _service(request).file_metadata(printer_id, _safe_path(filename))
 
-    @app.get("/api/printers/{printer_id}/files/thumbnail", responses=_ERRORS)
+    @app.get("/api/printers/{printer_id}/files/thumbnail", responses=_ERRORS, dependencies=[VIEWER])
     async def thumbnail(request: Request, printer_id: str, path: str) -> Response:
         """A thumbnail image (path as given by a file's metadata, relative to gcodes/)."""
         path = _safe_path(path)
@@ -227,6 +274,7 @@ def _routes(app: FastAPI) -> None:
         status_code=201,
         response_model=ActionResult,
         responses=_ERRORS,
+        dependencies=[OPERATOR],
     )
     async def upload(
         request: Request,
@@ -245,7 +293,12 @@ def _routes(app: FastAPI) -> None:
         )
         return _outcome(outcome)
 
-    @app.post("/api/fleet/actions/{action}", response_model=FleetActionResult, responses=_ERRORS)
+    @app.post(
+        "/api/fleet/actions/{action}",
+        response_model=FleetActionResult,
+        responses=_ERRORS,
+        dependencies=[OPERATOR],
+    )
     async def act_many(
         request: Request, action: ActionName, body: FleetActionRequest
     ) -> dict[str, Any]:
@@ -256,7 +309,10 @@ def _routes(app: FastAPI) -> None:
         return {"results": [_outcome(o) for o in outcomes]}
 
     @app.post(
-        "/api/fleet/actions/{action}/check", response_model=FleetCheckResult, responses=_ERRORS
+        "/api/fleet/actions/{action}/check",
+        response_model=FleetCheckResult,
+        responses=_ERRORS,
+        dependencies=[VIEWER],
     )
     async def check_many(
         request: Request, action: ActionName, body: FleetActionRequest
@@ -295,6 +351,10 @@ def _routes(app: FastAPI) -> None:
     async def browser_socket(websocket: WebSocket) -> None:
         """Snapshot, then coalesced deltas and events; send ``{"type": "console",
         "printers": [ids]}`` to receive those printers' G-code responses."""
+        if websocket_identity(websocket) is None:
+            # Before accept: the browser sees a failed handshake, no data leaks.
+            await websocket.close(code=4401)
+            return
         await websocket.accept()
         hub = _service(websocket).hub
         client = hub.connect()

@@ -37,9 +37,12 @@ log = logging.getLogger(__name__)
 
 # Enough for Klippy's `configfile` object, small enough that a runaway frame cannot eat memory.
 MAX_FRAME_BYTES: Final = 8 * 1024 * 1024
-# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT seconds.
+# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT + CLOSE_TIMEOUT seconds.
 PING_INTERVAL: Final = 5.0
 PING_TIMEOUT: Final = 5.0
+# A peer that stopped answering pings will not answer a close frame either: don't wait for
+# it (websockets' default, 10 s, would keep a dead printer "online" that much longer).
+CLOSE_TIMEOUT: Final = 1.0
 OPEN_TIMEOUT: Final = 5.0
 CALL_TIMEOUT: Final = 10.0
 # While Klippy starts, Moonraker's guide asks clients to poll server.info every 2 s.
@@ -47,6 +50,15 @@ KLIPPY_POLL_SECONDS: Final = 2.0
 # Wrong credentials will not fix themselves: retry slowly so Moonraker is not hammered.
 AUTH_RETRY_SECONDS: Final = 60.0
 _SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
+
+class _NoDebugLogger(logging.LoggerAdapter):  # type: ignore[type-arg]
+    """websockets logs handshake headers, the API key among them, at DEBUG: never let it."""
+
+    def isEnabledFor(self, level: int) -> bool:
+        return level > logging.DEBUG and self.logger.isEnabledFor(level)
+
+
+_WS_LOG: Final = _NoDebugLogger(logging.getLogger("kybercore.moonraker_session.ws"), {})
 
 Connect = Callable[..., Any]
 """Factory with the signature of :func:`websockets.asyncio.client.connect` (injectable)."""
@@ -96,7 +108,8 @@ EventCallback = Callable[[SessionEvent], None]
 
 
 class Backoff:
-    """Exponential backoff with full jitter, capped, reset after a healthy period."""
+    """Exponential backoff with jitter, capped; reset once a connection proved healthy
+    (it lasted ``healthy_after`` seconds, or the session called :meth:`reset`)."""
 
     def __init__(self, base: float = 0.5, cap: float = 30.0, healthy_after: float = 30.0) -> None:
         self.base = base
@@ -112,6 +125,10 @@ class Backoff:
         self._attempt += 1
         # Full jitter spreads a room of printers that all dropped at once.
         return float(ceiling / 2 + random.uniform(0, ceiling / 2))
+
+    def reset(self) -> None:
+        """Start again from ``base``: the peer answered, so the next drop is news."""
+        self._attempt = 0
 
 
 class MoonrakerSession:
@@ -145,6 +162,8 @@ class MoonrakerSession:
         self._ws: ClientConnection | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
+        self._up = False
+        """This connection got as far as a valid ``server.info``: Moonraker really answered."""
         self.connection = "connecting"
         self.klippy_state = "disconnected"
         self.last_error = ""
@@ -204,9 +223,26 @@ class MoonrakerSession:
     async def resubscribe(self) -> None:
         """Subscribe again (for example after changing what to watch)."""
         result = await self.call("printer.objects.subscribe", {"objects": self._subscription})
-        self._on_event(StatusSnapshot(status=result.get("status", {})))
+        status = result.get("status") if isinstance(result, dict) else None
+        if not isinstance(status, dict):
+            raise self._malformed("printer.objects.subscribe", "no 'status' object")
+        self._emit(StatusSnapshot(status=status_objects(status)))
 
     # -- internals ---------------------------------------------------------------------
+
+    def _malformed(self, method: str, why: str) -> MoonrakerRpcError:
+        return MoonrakerRpcError(
+            -32603,
+            f"unexpected answer to '{method}' ({why}). Is {self.ws_url} really Moonraker?",
+            printer=self.name,
+        )
+
+    def _emit(self, event: SessionEvent) -> None:
+        """Hand an event to the owner; its bugs are logged, never allowed to kill the link."""
+        try:
+            self._on_event(event)
+        except Exception:
+            log.exception("%s: the session's event handler failed on %s", self.name, event)
 
     def _unreachable(self, why: str) -> PrinterUnreachable:
         return PrinterUnreachable(
@@ -219,18 +255,20 @@ class MoonrakerSession:
         if connection != self.connection or detail != self.last_error:
             self.connection = connection
             self.last_error = detail
-            self._on_event(ConnectionChanged(connection, detail))
+            self._emit(ConnectionChanged(connection, detail))
 
     def _set_klippy(self, state: str, message: str = "") -> None:
         if state != self.klippy_state:
             self.klippy_state = state
-            self._on_event(KlippyChanged(state, message))
+            self._emit(KlippyChanged(state, message))
 
     async def _run(self) -> None:
         while True:
             started = time.monotonic()
             connected_for = 0.0
             retry_after: float | None = None
+            peer_left = False
+            self._up = False
             try:
                 headers = {"X-Api-Key": self._api_key} if self._api_key else {}
                 async with self._connect(
@@ -239,9 +277,11 @@ class MoonrakerSession:
                     open_timeout=OPEN_TIMEOUT,
                     ping_interval=PING_INTERVAL,
                     ping_timeout=PING_TIMEOUT,
+                    close_timeout=CLOSE_TIMEOUT,
                     max_size=MAX_FRAME_BYTES,
                     proxy=None,
                     compression=None,
+                    logger=_WS_LOG,
                 ) as ws:
                     started = time.monotonic()
                     await self._serve(ws)
@@ -259,9 +299,23 @@ class MoonrakerSession:
                 retry_after = AUTH_RETRY_SECONDS
                 self._drop(exc.message, "auth_failed")
             except (OSError, TimeoutError, websockets.WebSocketException, PrinterError) as exc:
+                # Moonraker went away (not: we closed on a fault such as an oversized frame).
+                peer_left = isinstance(exc, OSError) or (
+                    isinstance(exc, websockets.ConnectionClosed) and exc.sent is None
+                )
                 self._drop(_describe(exc))
+            except Exception as exc:
+                # A bug, or a Moonraker answer no one foresaw: the session must outlive it
+                # (a dead task would leave the printer shown "online" and frozen forever).
+                log.exception("%s: unexpected error in the Moonraker session", self.name)
+                self._drop(f"unexpected error in KyberCore's session ({type(exc).__name__})")
             else:
+                peer_left = True
                 self._drop("Moonraker closed the connection")
+            if peer_left and self._up:
+                # A healthy session ended by Moonraker (a restart): come back at once, however
+                # many restarts came before. Faults we detected keep backing off.
+                self._backoff.reset()
             connected_for = time.monotonic() - started
             delay = self._backoff.next_delay(connected_for)
             await asyncio.sleep(retry_after if retry_after is not None else delay)
@@ -316,6 +370,9 @@ class MoonrakerSession:
         while True:
             self._klippy_event.clear()
             info = await self.call("server.info")
+            if not isinstance(info, dict):
+                raise self._malformed("server.info", "not an object")
+            self._up = True
             state = str(info.get("klippy_state", "disconnected"))
             if info.get("klippy_connected") and state in _SUBSCRIBABLE_STATES:
                 try:
@@ -332,11 +389,19 @@ class MoonrakerSession:
                     await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
 
     async def _read(self, ws: ClientConnection) -> None:
+        ignored = 0
         async for frame in ws:
             try:
                 message = orjson.loads(frame)
             except orjson.JSONDecodeError:
-                log.warning("%s: ignored a frame that is not JSON", self.name)
+                ignored += 1
+                # Once per connection at WARNING: a broken peer must not flood the log.
+                log.log(
+                    logging.WARNING if ignored == 1 else logging.DEBUG,
+                    "%s: ignored a frame that is not JSON (%d on this connection)",
+                    self.name,
+                    ignored,
+                )
                 continue
             if isinstance(message, dict):
                 self._dispatch(message)
@@ -362,7 +427,7 @@ class MoonrakerSession:
         if method == "notify_status_update":
             if params and isinstance(params[0], dict):
                 eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
-                self._on_event(StatusDelta(delta=params[0], eventtime=eventtime))
+                self._emit(StatusDelta(delta=status_objects(params[0]), eventtime=eventtime))
             self._set_klippy(klippy_state_after(self.klippy_state, method, params))
             return
         if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
@@ -370,11 +435,18 @@ class MoonrakerSession:
         if method.startswith("notify_klippy_"):
             self._set_klippy(klippy_state_after(self.klippy_state, method, params))
             return
-        self._on_event(Notification(method, params))
+        self._emit(Notification(method, params))
+
+
+def status_objects(status: Mapping[str, Any]) -> Status:
+    """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
+    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
+    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
 
 
 def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
-    code = int(error.get("code", -1)) if isinstance(error, dict) else -1
+    raw_code = error.get("code") if isinstance(error, dict) else None
+    code = raw_code if isinstance(raw_code, int) and not isinstance(raw_code, bool) else -1
     text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
     # Moonraker answers a bad key in `identify` with -32602 "Invalid API Key".
     if code in (401, 403) or "api key" in text.lower() or "unauthorized" in text.lower():
