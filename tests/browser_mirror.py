@@ -13,6 +13,7 @@ import websockets
 from websockets.asyncio.client import ClientConnection
 
 from kybercore.printer_state import merge_status
+from tests.helpers import wait_for
 
 
 class BrowserMirror:
@@ -65,12 +66,7 @@ class BrowserMirror:
         self, predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition"
     ) -> float:
         """Wait until ``predicate()`` holds; return how long it took."""
-        start = time.monotonic()
-        while not predicate():
-            if time.monotonic() - start > timeout:
-                raise AssertionError(f"/ws: timed out after {timeout:g} s waiting for {what}")
-            await asyncio.sleep(0.01)
-        return time.monotonic() - start
+        return await wait_for(predicate, timeout, f"/ws: {what}")
 
     def events(self, kind: str, printer: str | None = None) -> list[dict[str, Any]]:
         """Event frames of one type, optionally for one printer."""

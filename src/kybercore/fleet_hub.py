@@ -10,7 +10,6 @@ so a slow browser never slows the others and never misses state.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import logging
 from collections.abc import Callable
@@ -19,6 +18,7 @@ from typing import Any, Final
 
 import orjson
 
+from kybercore.aio import cancel_and_wait
 from kybercore.fleet_view import View, diff
 
 log = logging.getLogger(__name__)
@@ -98,10 +98,7 @@ class Hub:
     async def stop(self) -> None:
         """Stop the tick loop."""
         task, self._task = self._task, None
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await cancel_and_wait(task)
 
     def view(self, printer_id: str) -> View | None:
         """The last published view of a printer (fresh after :meth:`flush`)."""

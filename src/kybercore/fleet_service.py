@@ -21,6 +21,7 @@ import httpx
 import websockets
 
 from kybercore.advisor import AdvisorConfig, advise, combine
+from kybercore.aio import cancel_and_wait
 from kybercore.errors import (
     ActionRejected,
     ConfigError,
@@ -107,10 +108,7 @@ class FleetService:
 
     async def stop(self) -> None:
         """Close every session and stop background work."""
-        if self._watcher is not None:
-            self._watcher.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._watcher
+        await cancel_and_wait(self._watcher)
         for task in list(self._background):
             task.cancel()
         await self.hub.stop()

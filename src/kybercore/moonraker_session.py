@@ -23,6 +23,7 @@ import orjson
 import websockets
 from websockets.asyncio.client import ClientConnection
 
+from kybercore.aio import cancel_and_wait
 from kybercore.errors import (
     KlippyNotReady,
     MoonrakerRpcError,
@@ -178,10 +179,7 @@ class MoonrakerSession:
     async def stop(self) -> None:
         """Close the socket and stop reconnecting."""
         task, self._task = self._task, None
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await cancel_and_wait(task)
 
     @property
     def running(self) -> bool:
