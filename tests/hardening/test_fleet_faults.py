@@ -1,0 +1,216 @@
+"""A fleet with faulty printers: the healthy one stays live, the process stays up.
+
+One :class:`FleetService` holds a real printer (virtual MCU + real Klippy + real Moonraker)
+and one FAULT-INJECTION stand-in per fault. Then a real ``kybercore serve`` process faces
+50 MB frames and malformed answers next to a real printer, and must keep serving with
+bounded memory.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+
+import httpx
+import pytest
+
+from kybercore import moonraker_session
+from kybercore.errors import PrinterUnreachable
+from kybercore.fleet_service import FleetService
+from kybercore.printer_config import PrinterConfig
+from kybercore.registry import PrinterRegistry, write_printers
+from kybercore.sim.stack import PrinterStack, free_port
+from tests.hardening.faults import rss_bytes, standin_process
+from tests.hardening.faulty_moonraker import FaultyMoonraker
+from tests.helpers import KyberCoreServer, wait_for
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+FAULTS = ("malformed", "unknown", "bad_shapes", "bad_info", "huge", "silent", "stall")
+WATCH_SECONDS = 8.0
+# The real printer heats, so Moonraker sends it deltas about 4 times a second.
+HEALTHY_GAP = 2.0
+
+StartStandin = Callable[[str], Awaitable[FaultyMoonraker]]
+
+
+@pytest.fixture
+def fast_timeouts(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(moonraker_session, "PING_INTERVAL", 0.5)
+    monkeypatch.setattr(moonraker_session, "PING_TIMEOUT", 0.5)
+    monkeypatch.setattr(moonraker_session, "OPEN_TIMEOUT", 0.5)
+
+
+@pytest.fixture
+async def standins() -> AsyncIterator[StartStandin]:
+    started: list[FaultyMoonraker] = []
+
+    async def start(scenario: str) -> FaultyMoonraker:
+        standin = FaultyMoonraker(scenario)
+        await standin.start()
+        started.append(standin)
+        return standin
+
+    yield start
+    for standin in started:
+        await standin.stop()
+
+
+def printer(printer_id: str, url: str) -> PrinterConfig:
+    return PrinterConfig(id=printer_id, name=printer_id, moonraker_url=url)
+
+
+async def test_a_fleet_of_faulty_printers_keeps_its_healthy_printer_live(
+    fast_timeouts: None,
+    start_stack: Callable[..., PrinterStack],
+    standins: StartStandin,
+    http: httpx.AsyncClient,
+    tmp_path: Path,
+) -> None:
+    real = start_stack("faults-healthy")
+    faulty = {scenario: await standins(scenario) for scenario in FAULTS}
+    ids = {scenario: "faulty-" + scenario.replace("_", "-") for scenario in FAULTS}
+    path = tmp_path / "printers.json"
+    printers = [printer("healthy", real.url)]
+    printers += [printer(ids[s], standin.url) for s, standin in faulty.items()]
+    write_printers(path, printers)
+    service = FleetService(PrinterRegistry(path), http)
+    await service.start()
+    try:
+        await wait_for(
+            lambda: service.view("healthy")["klippy_state"] == "ready", what="the real printer"
+        )
+        await service.client("healthy").gcode_script("M104 S45", timeout=10)
+        start = last_change = time.monotonic()
+        last_seen, max_gap, samples = service.view("healthy")["updated_at"], 0.0, 0
+        while time.monotonic() - start < WATCH_SECONDS:
+            views = {v["id"]: v for v in service.views()}  # never raises, never loses one
+            assert len(views) == len(printers)
+            healthy = views["healthy"]
+            assert healthy["connection"] == "online", healthy["connection_error"]
+            assert healthy["klippy_state"] == "ready"
+            now = time.monotonic()
+            if healthy["updated_at"] != last_seen:
+                max_gap = max(max_gap, now - last_change)
+                last_seen, last_change = healthy["updated_at"], now
+            samples += 1
+            await asyncio.sleep(0.1)
+        max_gap = max(max_gap, time.monotonic() - last_change)
+        assert max_gap < HEALTHY_GAP, f"the healthy printer went {max_gap:.1f} s without news"
+        # The real printer still acts, fast, while the others misbehave.
+        before = time.monotonic()
+        await service.client("healthy").server_info()
+        assert time.monotonic() - before < 1.0
+
+        views = {v["id"]: v for v in service.views()}
+        # Junk is ignored: those printers never dropped.
+        for scenario in ("malformed", "unknown", "bad_shapes"):
+            assert faulty[scenario].connections == 1, scenario
+            assert views[ids[scenario]]["connection"] == "online", scenario
+        # The others recycle, each on its own: none is stuck on a dead socket.
+        for scenario in ("bad_info", "huge", "silent", "stall"):
+            assert faulty[scenario].connections >= 2, (scenario, faulty[scenario].connections)
+        assert views[ids["stall"]]["connection"] != "online"
+        assert "timed out" in views[ids["stall"]]["connection_error"]
+        # An action on the stalled printer is refused at once (HTTP 503), never waits.
+        before = time.monotonic()
+        with pytest.raises(PrinterUnreachable):
+            await service.act(ids["stall"], "home")
+        assert time.monotonic() - before < 1.0
+    finally:
+        try:
+            await service.client("healthy").gcode_script("M104 S0", timeout=10)
+        finally:
+            await service.stop()
+            real.stop()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="fleet_view.fuse trusts field types (float('half') for a progress) and "
+    "Hub.flush lets one printer's render error escape: one bad printer breaks "
+    "GET /api/printers for the whole fleet. Fix belongs in fleet_view/fleet_hub.",
+)
+async def test_wrong_field_types_from_one_printer_do_not_break_the_fleet_view(
+    standins: StartStandin, http: httpx.AsyncClient, tmp_path: Path
+) -> None:
+    healthy = await standins("healthy")
+    broken = await standins("bad_fields")
+    path = tmp_path / "printers.json"
+    write_printers(path, [printer("healthy", healthy.url), printer("broken", broken.url)])
+    service = FleetService(PrinterRegistry(path), http)
+    await service.start()
+    try:
+        await wait_for(lambda: broken.subscriptions > 0 and healthy.subscriptions > 0)
+        await asyncio.sleep(0.5)  # every bad delta has been sent at least once
+        views = {v["id"]: v for v in service.views()}
+        assert views["healthy"]["connection"] == "online"
+        first = views["healthy"]["extruder"]["temperature"]
+        await asyncio.sleep(0.5)
+        assert service.view("healthy")["extruder"]["temperature"] != first
+    finally:
+        await service.stop()
+
+
+# -- a real `kybercore serve` process ------------------------------------------------------
+
+SERVE_SECONDS = 10.0
+MAX_SERVE_RSS_GROWTH = 64 * 1024 * 1024
+
+
+def _healthy_ready(url: str) -> bool:
+    views = {v["id"]: v for v in httpx.get(f"{url}/api/printers", timeout=5).json()}
+    return bool(views["healthy"]["klippy_state"] == "ready")
+
+
+def test_kybercore_serve_stays_up_with_bounded_memory_next_to_faulty_printers(
+    start_stack: Callable[..., PrinterStack], tmp_path: Path
+) -> None:
+    real = start_stack("faults-serve-healthy")
+    with standin_process("huge") as huge, standin_process("bad_info") as bad_info:
+        path = tmp_path / "printers.json"
+        write_printers(
+            path,
+            [
+                printer("healthy", real.url),
+                printer("huge", huge.url),
+                printer("bad-info", bad_info.url),
+            ],
+        )
+        server = KyberCoreServer(path, free_port())
+        server.start()
+        try:
+            deadline = time.monotonic() + 30
+            while not _healthy_ready(server.url) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            pid = server._proc.pid if server._proc else 0
+            rss_before = rss_bytes(pid)
+            slowest = 0.0
+            deadline = time.monotonic() + SERVE_SECONDS
+            with httpx.Client(base_url=server.url, timeout=5) as api:
+                while time.monotonic() < deadline:
+                    before = time.monotonic()
+                    assert api.get("/api/health").status_code == 200
+                    views = {v["id"]: v for v in api.get("/api/printers").json()}
+                    slowest = max(slowest, time.monotonic() - before)
+                    assert views["healthy"]["connection"] == "online"
+                    assert views["healthy"]["klippy_state"] == "ready"
+                    time.sleep(0.2)
+            rss_after = rss_bytes(pid)
+            log = server.log.read_text()
+        finally:
+            server.stop()
+    print(
+        f"\nkybercore serve took {huge.huge_frames_sent} frames of 50 MB and "
+        f"{bad_info.connections} malformed sessions; slowest health+list "
+        f"{slowest * 1000:.0f} ms; RSS {rss_before / 2**20:.0f} -> {rss_after / 2**20:.0f} MiB"
+    )
+    assert huge.huge_frames_sent >= 3, "the session did not recycle after the big frames"
+    assert bad_info.connections >= 3
+    assert slowest < 1.0
+    assert rss_after - rss_before < MAX_SERVE_RSS_GROWTH
+    assert "Traceback" not in log, log[-3000:]
+    assert json.loads(path.read_text())["printers"][0]["id"] == "healthy"

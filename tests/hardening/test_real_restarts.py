@@ -1,0 +1,181 @@
+"""Real Moonraker restarts and real Klippy crashes: every printer comes back to ``ready``.
+
+Two real printers (virtual MCU + real Klippy + real Moonraker) are watched by one
+:class:`MoonrakerClient` session each. Printer A has its Moonraker stopped and started 30
+times; printer B has its Klippy SIGKILLed and started again 30 times, both at once. After
+each, the session must see the outage and then ``ready`` again **by itself** (fresh
+subscription snapshot included), in bounded time.
+
+What a real farm sees, and so what this test expects: Klippy killed while idle finds its MCU
+still configured and is ``ready`` again in ~1 s with no help. Klippy killed while a heater is
+on and left down longer than Klipper's MAX_HEAT_TIME (5 s) finds the MCU shut down by its
+heater watchdog ("Missed scheduling of next digital out event"), as real firmware does:
+Klippy then stops in ``error`` ("Can not update MCU 'mcu' config as it is shutdown") and
+stays there until someone presses FIRMWARE_RESTART. Two of the 30 kills are of that kind;
+the test checks the printer does *not* pretend to be ready, then does what the operator would
+(``firmware_restart`` through the client) and expects ``ready``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import statistics
+import time
+from collections.abc import AsyncIterator, Callable
+
+import httpx
+import pytest
+
+from kybercore.moonraker_client import MoonrakerClient
+from kybercore.moonraker_session import (
+    ConnectionChanged,
+    KlippyChanged,
+    SessionEvent,
+    StatusSnapshot,
+)
+from kybercore.sim.stack import PrinterStack
+from tests.helpers import wait_for
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
+
+RESTARTS = 30
+KILLS = 30
+HEATED_KILLS = (10, 20)  # kill numbers where a heater is on and Klippy stays down > 5 s
+BACK_WITHIN = 10.0
+"""Seconds from the restarted process's start to the session's ``ready``: past it, stuck."""
+
+
+class Watch:
+    """One printer's session and everything it reported."""
+
+    def __init__(self, stack: PrinterStack, http: httpx.AsyncClient) -> None:
+        self.events: list[SessionEvent] = []
+        self.client = MoonrakerClient(
+            stack.url, http, name=stack.options.name, on_event=self.events.append
+        )
+
+    def since(self, mark: int, kind: type[SessionEvent]) -> list[SessionEvent]:
+        return [e for e in self.events[mark:] if isinstance(e, kind)]
+
+    def klippy_since(self, mark: int) -> list[str]:
+        return [e.state for e in self.since(mark, KlippyChanged) if isinstance(e, KlippyChanged)]
+
+    def connection_since(self, mark: int) -> list[str]:
+        return [
+            e.connection
+            for e in self.since(mark, ConnectionChanged)
+            if isinstance(e, ConnectionChanged)
+        ]
+
+    def ready_again(self, mark: int) -> bool:
+        session = self.client.session
+        return (
+            session.connection == "online"
+            and session.klippy_state == "ready"
+            and bool(self.since(mark, StatusSnapshot))
+        )
+
+
+@pytest.fixture
+async def watches(
+    start_stack: Callable[..., PrinterStack], http: httpx.AsyncClient
+) -> AsyncIterator[tuple[PrinterStack, Watch, PrinterStack, Watch]]:
+    a = start_stack("restart-a")
+    b = start_stack("restart-b")
+    wa, wb = Watch(a, http), Watch(b, http)
+    for watch in (wa, wb):
+        watch.client.start()
+        await wait_for(lambda w=watch: w.ready_again(0), timeout=15, what="the first ready")
+    yield a, wa, b, wb
+    for watch in (wa, wb):
+        await watch.client.close()
+    a.stop()
+    b.stop()
+
+
+async def restart_moonraker(stack: PrinterStack, watch: Watch) -> list[float]:
+    times = []
+    for n in range(RESTARTS):
+        mark = len(watch.events)
+        await asyncio.to_thread(stack.stop_moonraker)
+        await wait_for(
+            lambda m=mark: "offline" in watch.connection_since(m),
+            timeout=10,
+            what=f"restart {n}: the session to notice Moonraker is gone",
+        )
+        started = time.monotonic()
+        await asyncio.to_thread(stack.start_moonraker)
+        await wait_for(
+            lambda m=mark: watch.ready_again(m),
+            timeout=BACK_WITHIN,
+            what=f"restart {n}: the session back at ready by itself",
+        )
+        times.append(time.monotonic() - started)
+    return times
+
+
+async def kill_klippy(stack: PrinterStack, watch: Watch) -> tuple[list[float], list[str]]:
+    times, operator_presses = [], []
+    for n in range(KILLS):
+        heated = n in HEATED_KILLS
+        if heated:
+            await watch.client.gcode_script("M104 S150", timeout=10)
+            await asyncio.sleep(0.5)
+        mark = len(watch.events)
+        await asyncio.to_thread(stack.kill_klippy)
+        await wait_for(
+            lambda m=mark: "disconnected" in watch.klippy_since(m),
+            timeout=10,
+            what=f"kill {n}: the session to notice Klippy is gone",
+        )
+        if heated:
+            await asyncio.sleep(6.0)  # > MAX_HEAT_TIME: the MCU's heater watchdog trips
+        started = time.monotonic()
+        await asyncio.to_thread(stack.start_klippy)
+        if heated:
+            await wait_for(
+                lambda m=mark: (
+                    watch.client.session.klippy_state in ("error", "shutdown")
+                    and bool(watch.since(m, StatusSnapshot))
+                ),
+                timeout=BACK_WITHIN,
+                what=f"kill {n}: Klippy to report the MCU it cannot configure",
+            )
+            info = await watch.client.printer_info()
+            assert "shutdown" in info["state_message"], info
+            operator_presses.append(watch.client.session.klippy_state)
+            mark = len(watch.events)
+            started = time.monotonic()
+            await watch.client.firmware_restart()  # what the operator presses
+        await wait_for(
+            lambda m=mark: watch.ready_again(m),
+            timeout=BACK_WITHIN,
+            what=f"kill {n}: the session back at ready",
+        )
+        times.append(time.monotonic() - started)
+        # Moonraker stayed up: the socket itself must never have dropped.
+        assert "offline" not in watch.connection_since(mark), watch.connection_since(mark)
+    return times, operator_presses
+
+
+async def test_30_moonraker_restarts_and_30_klippy_kills_all_back_at_ready(
+    watches: tuple[PrinterStack, Watch, PrinterStack, Watch], http: httpx.AsyncClient
+) -> None:
+    a, wa, b, wb = watches
+    started = time.monotonic()
+    restarts, (kills, presses) = await asyncio.gather(restart_moonraker(a, wa), kill_klippy(b, wb))
+    elapsed = time.monotonic() - started
+    assert len(restarts) == RESTARTS
+    assert len(kills) == KILLS
+    assert len(presses) == len(HEATED_KILLS)
+    # None stuck: both printers ready now, as Moonraker itself says.
+    for stack in (a, b):
+        info = (await http.get(f"{stack.url}/server/info")).json()["result"]
+        assert info["klippy_state"] == "ready"
+    print(
+        f"\n{RESTARTS} Moonraker restarts: back at ready in median "
+        f"{statistics.median(restarts):.2f} s, max {max(restarts):.2f} s; "
+        f"{KILLS} Klippy kills: median {statistics.median(kills):.2f} s, "
+        f"max {max(kills):.2f} s ({len(presses)} needed FIRMWARE_RESTART after the heater "
+        f"watchdog, Klippy state was {presses}); {elapsed:.0f} s in all"
+    )

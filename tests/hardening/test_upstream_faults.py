@@ -1,0 +1,277 @@
+"""Faults a real Moonraker cannot produce on demand, against :class:`MoonrakerSession`.
+
+Every peer here is the FAULT-INJECTION stand-in of :mod:`tests.hardening.faulty_moonraker`.
+Junk must be ignored without dropping the link; a 50 MB frame, a silent peer and a stalled
+handshake must make the session recycle (drop, fail pending calls, reconnect) within its
+timeouts; a healthy printer served by the same event loop must not notice; memory must stay
+bounded. Most tests shorten the keepalive and open timeouts (module constants) to keep the
+suite fast; one runs the production values.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+import tracemalloc
+from collections.abc import AsyncIterator, Awaitable, Callable
+
+import pytest
+
+from kybercore import moonraker_session
+from kybercore.errors import MoonrakerRpcError, PrinterUnreachable
+from kybercore.moonraker_client import FLEET_OBJECTS, websocket_url
+from kybercore.moonraker_session import Backoff, MoonrakerSession, StatusDelta
+from tests.hardening.faults import Recorder, rss_bytes, standin_process
+from tests.hardening.faulty_moonraker import (
+    BAD_SHAPES,
+    MALFORMED,
+    UNKNOWN,
+    FaultyMoonraker,
+)
+from tests.helpers import wait_for
+
+pytestmark = pytest.mark.timeout(120)
+
+FAST_PING_INTERVAL = 0.5
+FAST_PING_TIMEOUT = 0.5
+FAST_OPEN_TIMEOUT = 0.5
+# Gaps in a healthy printer's 20 Hz stream beyond this mean the event loop was blocked.
+HEALTHY_GAP = 0.5
+# Production constants: a ping every 5 s, 5 s for its pong, 1 s for the close = 11 s.
+PRODUCTION_SILENCE_LIMIT = 12.0  # 11 s plus scheduling slack
+PRODUCTION_STALL_LIMIT = 5.5
+
+StartStandin = Callable[..., Awaitable[FaultyMoonraker]]
+OpenSession = Callable[..., tuple[MoonrakerSession, Recorder]]
+
+
+@pytest.fixture
+def fast_timeouts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Keepalive and open timeouts of 0.5 s (CLOSE_TIMEOUT keeps its production value)."""
+    monkeypatch.setattr(moonraker_session, "PING_INTERVAL", FAST_PING_INTERVAL)
+    monkeypatch.setattr(moonraker_session, "PING_TIMEOUT", FAST_PING_TIMEOUT)
+    monkeypatch.setattr(moonraker_session, "OPEN_TIMEOUT", FAST_OPEN_TIMEOUT)
+
+
+@pytest.fixture
+async def standins() -> AsyncIterator[StartStandin]:
+    started: list[FaultyMoonraker] = []
+
+    async def start(scenario: str, **options: float) -> FaultyMoonraker:
+        standin = FaultyMoonraker(scenario, **options)  # type: ignore[arg-type]
+        await standin.start()
+        started.append(standin)
+        return standin
+
+    yield start
+    for standin in started:
+        await standin.stop()
+
+
+@pytest.fixture
+async def sessions() -> AsyncIterator[OpenSession]:
+    opened: list[MoonrakerSession] = []
+
+    def open_session(
+        url: str, name: str = "printer", backoff: Backoff | None = None
+    ) -> tuple[MoonrakerSession, Recorder]:
+        recorder = Recorder()
+        session = MoonrakerSession(
+            websocket_url(url),
+            name=name,
+            api_key=None,
+            subscription=FLEET_OBJECTS,
+            on_event=recorder,
+            client_name=f"kybercore-hardening-{name}",
+            version="test",
+            backoff=backoff or Backoff(base=0.1, cap=1.0),
+        )
+        session.start()
+        opened.append(session)
+        return session, recorder
+
+    yield open_session
+    for session in opened:
+        await session.stop()
+
+
+async def healthy_pair(
+    standins: StartStandin, sessions: OpenSession
+) -> tuple[FaultyMoonraker, MoonrakerSession, Recorder]:
+    healthy = await standins("healthy")
+    session, rec = sessions(healthy.url, "healthy")
+    await wait_for(lambda: rec.snapshots() > 0, what="the healthy printer's subscription")
+    return healthy, session, rec
+
+
+# -- junk is ignored ---------------------------------------------------------------------
+
+JUNK = {"malformed": MALFORMED, "unknown": UNKNOWN, "bad_shapes": BAD_SHAPES}
+
+
+@pytest.mark.parametrize("scenario", sorted(JUNK))
+async def test_junk_frames_are_ignored_without_dropping_the_session(
+    scenario: str, standins: StartStandin, sessions: OpenSession
+) -> None:
+    faulty = await standins(scenario)
+    session, rec = sessions(faulty.url, scenario)
+    # The stand-in sends one junk frame before each good delta: go through the list twice.
+    wanted = 2 * len(JUNK[scenario]) + 5
+    await wait_for(
+        lambda: len(rec.good_deltas()) >= wanted, timeout=15, what=f"{wanted} good deltas"
+    )
+    assert faulty.connections == 1, "junk must not cost the connection"
+    assert rec.connections() == ["online"]
+    assert session.connection == "online"
+    assert session.klippy_state == "ready"
+    # Consumers only ever see printer objects that are objects.
+    for delta in rec.of(StatusDelta):
+        assert isinstance(delta, StatusDelta)
+        assert all(isinstance(fields, dict) for fields in delta.delta.values()), delta
+    # Calls still get their answers between the junk.
+    assert (await session.call("printer.info"))["state"] == "ready"
+    if scenario == "bad_shapes":
+        # An error whose code is not a number is still a typed error, not a dead reader.
+        with pytest.raises(MoonrakerRpcError) as error:
+            await session.call("printer.gcode.script", {"script": "G28"})
+        assert error.value.code == -1
+        await asyncio.sleep(0.3)
+        assert session.running
+        assert session.connection == "online"
+        assert faulty.connections == 1
+
+
+async def test_a_malformed_answer_recycles_the_session_with_growing_backoff(
+    standins: StartStandin, sessions: OpenSession
+) -> None:
+    faulty = await standins("bad_info")  # server.info answers a list
+    session, rec = sessions(faulty.url, "bad-info", Backoff(base=0.1, cap=0.8))
+    await asyncio.sleep(3.0)
+    assert session.running, "the session task died on an answer it did not expect"
+    drops = rec.drops()
+    assert drops
+    assert "unexpected answer to 'server.info'" in drops[-1][1]
+    # It keeps trying, but backs off: 0.05-0.1 s first, then up to 0.8 s (not 60 tries).
+    assert 4 <= faulty.connections <= 15, faulty.connections
+    # Between attempts, calls fail at once with the reason.
+    await wait_for(lambda: session.connection == "offline", what="an offline moment")
+    with pytest.raises(PrinterUnreachable, match="unexpected answer"):
+        await session.call("server.info")
+
+
+# -- recycling: huge frame, silence, stalled handshake -------------------------------------
+
+
+async def test_a_50mb_frame_recycles_the_session_and_others_keep_flowing(
+    standins: StartStandin, sessions: OpenSession
+) -> None:
+    healthy, healthy_session, healthy_rec = await healthy_pair(standins, sessions)
+    faulty = await standins("huge")
+    start = time.monotonic()
+    session, rec = sessions(faulty.url, "huge", Backoff(base=0.1, cap=0.5))
+    await wait_for(lambda: len(rec.drops()) >= 3, timeout=15, what="three recycles")
+    end = time.monotonic()
+    assert all("message too big" in why for _, why in rec.drops()), rec.drops()
+    assert faulty.connections >= 3
+    assert rec.snapshots() >= 3, "each new connection subscribes again"
+    assert session.running
+    # The other printer on the same event loop did not notice.
+    assert healthy.connections == 1
+    assert healthy_session.connection == "online"
+    assert healthy_rec.max_gap(start, end) < HEALTHY_GAP
+
+
+async def test_a_silent_peer_is_dropped_within_the_keepalive_and_pending_calls_fail(
+    fast_timeouts: None, standins: StartStandin, sessions: OpenSession
+) -> None:
+    healthy, healthy_session, healthy_rec = await healthy_pair(standins, sessions)
+    faulty = await standins("silent", silent_after=4)
+    session, rec = sessions(faulty.url, "silent")
+    await wait_for(lambda: bool(faulty.silenced_at), what="the peer to go silent")
+    silent_since = faulty.silenced_at[0]
+    # A call sent now is never read: it must fail when the session drops, not hang.
+    with pytest.raises(PrinterUnreachable) as error:
+        await session.call("printer.info")
+    failed_after = time.monotonic() - silent_since
+    assert "keepalive ping timeout" in error.value.message
+    limit = FAST_PING_INTERVAL + FAST_PING_TIMEOUT + moonraker_session.CLOSE_TIMEOUT + 0.5
+    assert failed_after < limit, f"noticed the silence after {failed_after:.1f} s"
+    assert rec.drops()[0][0] - silent_since < limit
+    # ...and it recycles: a new connection, a new subscription.
+    await wait_for(lambda: faulty.connections >= 2 and rec.snapshots() >= 2, what="a reconnect")
+    assert healthy.connections == 1
+    assert healthy_session.connection == "online"
+    assert healthy_rec.max_gap(silent_since, time.monotonic()) < HEALTHY_GAP
+
+
+async def test_a_stalled_handshake_times_out_and_keeps_retrying(
+    fast_timeouts: None, standins: StartStandin, sessions: OpenSession
+) -> None:
+    _, healthy_session, healthy_rec = await healthy_pair(standins, sessions)
+    faulty = await standins("stall")
+    start = time.monotonic()
+    session, rec = sessions(faulty.url, "stall")
+    await wait_for(lambda: bool(rec.drops()), timeout=5, what="the open timeout")
+    assert rec.drops()[0][0] - start < FAST_OPEN_TIMEOUT + 0.5
+    assert rec.drops()[0][1] == "timed out while connecting"
+    # Calls fail at once while the session cannot connect: nothing waits on the stall.
+    before = time.monotonic()
+    with pytest.raises(PrinterUnreachable):
+        await session.call("server.info")
+    assert time.monotonic() - before < 0.1
+    await wait_for(lambda: faulty.connections >= 3, timeout=10, what="three attempts")
+    assert session.running
+    assert healthy_session.connection == "online"
+    assert healthy_rec.max_gap(start, time.monotonic()) < HEALTHY_GAP
+
+
+async def test_production_timeouts_notice_silent_and_stalled_peers_within_11_s(
+    standins: StartStandin, sessions: OpenSession
+) -> None:
+    """The real constants, not the test ones: both faults are noticed in bounded time."""
+    silent = await standins("silent", silent_after=2)
+    stall = await standins("stall")
+    start = time.monotonic()
+    _, silent_rec = sessions(silent.url, "silent")
+    _, stall_rec = sessions(stall.url, "stall")
+    await wait_for(lambda: bool(silent_rec.drops()), timeout=14, what="the silence noticed")
+    noticed = silent_rec.drops()[0][0] - silent.silenced_at[0]
+    assert noticed < PRODUCTION_SILENCE_LIMIT, f"a silent printer looked online for {noticed:.1f} s"
+    assert stall_rec.drops(), "the stalled handshake was not given up"
+    assert stall_rec.drops()[0][0] - start < PRODUCTION_STALL_LIMIT
+
+
+# -- memory ------------------------------------------------------------------------------
+
+HUGE_FRAMES = 6
+MAX_TRACED_GROWTH = 16 * 1024 * 1024
+MAX_RSS_GROWTH = 64 * 1024 * 1024
+
+
+async def test_memory_stays_bounded_through_many_50mb_frames(sessions: OpenSession) -> None:
+    """The stand-in runs in its own process: only KyberCore's side is measured."""
+    with standin_process("huge") as faulty:
+        rss_before = rss_bytes()
+        tracemalloc.start()
+        try:
+            traced_before, _ = tracemalloc.get_traced_memory()
+            tracemalloc.reset_peak()
+            _, rec = sessions(faulty.url, "huge", Backoff(base=0.05, cap=0.2))
+            await wait_for(
+                lambda: len(rec.drops()) >= HUGE_FRAMES,
+                timeout=60,
+                what=f"{HUGE_FRAMES} frames of 50 MB",
+            )
+            _, traced_peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        rss_after = rss_bytes()
+    assert all("message too big" in why for _, why in rec.drops())
+    assert faulty.huge_frames_sent >= HUGE_FRAMES
+    print(
+        f"\n{len(rec.drops())} frames of 50 MB: Python allocations peaked "
+        f"{(traced_peak - traced_before) / 2**20:.1f} MiB above the start; RSS "
+        f"{rss_before / 2**20:.0f} -> {rss_after / 2**20:.0f} MiB"
+    )
+    assert traced_peak - traced_before < MAX_TRACED_GROWTH
+    assert rss_after - rss_before < MAX_RSS_GROWTH
