@@ -1,0 +1,89 @@
+// The REST API of the KyberCore backend. Every failure becomes an ApiError carrying the
+// backend's {code, message, reasons}; nothing here invents a success.
+import { t } from "./i18n.js";
+
+export class ApiError extends Error {
+  constructor(status, error) {
+    super((error && error.message) || `HTTP ${status}`);
+    this.status = status;
+    this.code = (error && error.code) || `http_${status}`;
+    this.reasons = (error && error.reasons) || [];
+  }
+}
+
+const enc = encodeURIComponent;
+
+async function request(method, path, body) {
+  let response;
+  try {
+    response = await fetch(path, {
+      method,
+      headers: body === undefined ? {} : { "Content-Type": "application/json" },
+      body: body === undefined ? undefined : JSON.stringify(body),
+    });
+  } catch {
+    throw new ApiError(0, { code: "network", message: t("error.network") });
+  }
+  if (response.status === 401) window.dispatchEvent(new CustomEvent("kybercore:unauthorized"));
+  if (response.status === 204) return null;
+  let data = null;
+  try {
+    data = await response.json();
+  } catch {
+    data = null;
+  }
+  if (!response.ok) {
+    throw new ApiError(response.status, (data && data.error) || { message: `HTTP ${response.status} ${response.statusText}` });
+  }
+  return data;
+}
+
+const printer = (id) => `/api/printers/${enc(id)}`;
+
+export const api = {
+  session: () => request("GET", "/api/session"),
+  login: (token) => request("POST", "/api/session", { token }),
+  logout: () => request("DELETE", "/api/session"),
+  addPrinter: (body) => request("POST", "/api/printers", body),
+  updatePrinter: (id, body) => request("PATCH", printer(id), body),
+  removePrinter: (id) => request("DELETE", printer(id)),
+  act: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}`, params),
+  check: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}/check`, params),
+  gcode: (id, script, options = {}) => request("POST", `${printer(id)}/gcode`, { script, ...options }),
+  files: (id) => request("GET", `${printer(id)}/files`),
+  metadata: (id, filename) => request("GET", `${printer(id)}/files/metadata?filename=${enc(filename)}`),
+  thumbnailUrl: (id, path) => `${printer(id)}/files/thumbnail?path=${enc(path)}`,
+  actMany: (action, ids, params = {}) =>
+    request("POST", `/api/fleet/actions/${enc(action)}`, { ...params, printer_ids: ids }),
+  checkMany: (action, ids, params = {}) =>
+    request("POST", `/api/fleet/actions/${enc(action)}/check`, { ...params, printer_ids: ids }),
+};
+
+/**
+ * Upload a G-code file with XMLHttpRequest (fetch cannot report upload progress).
+ * onProgress(fraction) is called while the bytes go out. Returns {promise, abort}.
+ */
+export function upload(id, file, { start = false, confirm = false, onProgress } = {}) {
+  const xhr = new XMLHttpRequest();
+  const promise = new Promise((resolve, reject) => {
+    xhr.open("POST", `${printer(id)}/files`);
+    xhr.responseType = "json";
+    xhr.upload.addEventListener("progress", (event) => {
+      if (event.lengthComputable && onProgress) onProgress(event.loaded / event.total);
+    });
+    xhr.addEventListener("load", () => {
+      const data = xhr.response;
+      if (xhr.status === 401) window.dispatchEvent(new CustomEvent("kybercore:unauthorized"));
+      if (xhr.status >= 200 && xhr.status < 300) resolve(data);
+      else reject(new ApiError(xhr.status, (data && data.error) || { message: `HTTP ${xhr.status}` }));
+    });
+    xhr.addEventListener("error", () => reject(new ApiError(0, { code: "network", message: t("error.network") })));
+    xhr.addEventListener("abort", () => reject(new ApiError(0, { code: "aborted", message: t("upload.aborted") })));
+    const form = new FormData();
+    form.append("file", file, file.name);
+    form.append("start", start ? "true" : "false");
+    form.append("confirm", confirm ? "true" : "false");
+    xhr.send(form);
+  });
+  return { promise, abort: () => xhr.abort() };
+}

@@ -1,0 +1,324 @@
+// One printer as a tile (overview) or a table row (compact view). Each is built once and
+// then updated in place: every field is written only when its value changed.
+import { api } from "./api.js";
+import { h, icon, setAttr, setHidden, setText } from "./dom.js";
+import * as fmt from "./format.js";
+import { t } from "./i18n.js";
+import { can, currentSession } from "./session.js";
+import { staleAge, statusOf } from "./store.js";
+
+/** Quick actions on every card; the rest live in the "more" menu. */
+const QUICK = ["pause", "resume", "cancel"];
+
+function actionButton(action, iconName, extraClass = "") {
+  return h("button", { type: "button", class: `icon-btn ${extraClass}`.trim(), dataset: { action } }, icon(iconName));
+}
+
+function buildActions() {
+  const box = h("div", { class: "card-actions" });
+  for (const action of QUICK) box.append(actionButton(action, action));
+  box.append(
+    h("span", { class: "sep", "aria-hidden": "true" }),
+    actionButton("files", "files"),
+    actionButton("console", "console"),
+    h("button", { type: "button", class: "icon-btn", dataset: { action: "more" }, "aria-haspopup": "menu", "aria-expanded": "false" }, icon("more")),
+    h("button", { type: "button", class: "btn estop", dataset: { action: "emergency_stop" } }, icon("bolt"), h("span", { class: "estop-label" })),
+  );
+  return box;
+}
+
+/** Labels and enabled state of the action buttons, from the view's `actions` and the role. */
+function updateActions(box, p, memo) {
+  const actions = p.actions || {};
+  const online = p.connection === "online";
+  const operator = can("operator");
+  const key = `${JSON.stringify(actions)}|${online}|${p.name}|${currentSession().role}|${t("action.pause")}`;
+  if (memo.actions === key) return;
+  memo.actions = key;
+  for (const button of box.querySelectorAll("[data-action]")) {
+    const action = button.dataset.action;
+    const label = t(`action.${action}`);
+    setAttr(button, "aria-label", t("aria.onPrinter", { action: label, name: p.name }));
+    let enabled = true;
+    if (action === "files") enabled = online;
+    else if (action in actions) enabled = operator && Boolean(actions[action]);
+    button.disabled = !enabled;
+    setAttr(button, "title", !operator && action in actions ? `${label} — ${t("session.needs_operator")}` : label);
+  }
+  setText(box.querySelector(".estop-label"), t("action.estop_short"));
+}
+
+/** Text of the note line: why a printer is not usable, or the job's message. */
+function noteOf(p) {
+  if (p.connection !== "online" && p.connection !== "disabled") return p.connection_error || "";
+  if (p.connection === "online" && p.klippy_state !== "ready") return p.klippy_message || "";
+  return p.job?.message || "";
+}
+
+function heaterText(heater) {
+  return fmt.temp(heater?.temperature);
+}
+
+function targetText(heater) {
+  const value = fmt.target(heater?.target);
+  return value ? `/ ${value}` : "";
+}
+
+function etaText(job) {
+  if (typeof job?.eta_seconds !== "number" || !["printing", "paused"].includes(job.state)) return "";
+  return t("job.left", { time: fmt.duration(job.eta_seconds) });
+}
+
+function layerText(job) {
+  if (typeof job?.layer !== "number" || typeof job?.total_layers !== "number") return "";
+  return t("job.layer", { layer: job.layer, total: job.total_layers });
+}
+
+function hasJob(p) {
+  return Boolean(p.job?.filename) && p.klippy_state === "ready";
+}
+
+function setProgress(el, fraction) {
+  const value = Math.round((fraction || 0) * 1000) / 10;
+  setAttr(el, "aria-valuenow", Math.floor(value));
+  const bar = el.firstElementChild;
+  const width = `${value}%`;
+  if (bar.style.width !== width) bar.style.width = width;
+}
+
+function progressBar() {
+  return h("div", { class: "progress", role: "progressbar", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, h("span", { class: "bar" }));
+}
+
+class Card {
+  constructor(id) {
+    this.id = id;
+    this.memo = {};
+  }
+
+  /** True (and remembered) when `value` differs from the last one seen under `key`. */
+  changed(key, value) {
+    if (this.memo[key] === value) return false;
+    this.memo[key] = value;
+    return true;
+  }
+
+  /** Forget every remembered value: the next update writes everything (language change). */
+  reset() {
+    this.memo = {};
+  }
+
+  updateStale(p, now) {
+    const age = staleAge(p, now);
+    const text = age === null ? "" : t("stale.age", { age: fmt.age(age) });
+    if (this.changed("stale", text)) {
+      setText(this.refs.stale, text);
+      setHidden(this.refs.stale, !text);
+      this.el.classList.toggle("is-stale", Boolean(text));
+    }
+  }
+}
+
+export class Tile extends Card {
+  constructor(p) {
+    super(p.id);
+    const nameId = `tile-${p.id}-name`;
+    const r = (this.refs = {
+      select: h("input", { type: "checkbox", class: "select", dataset: { select: p.id } }),
+      name: h("h3", { class: "name", id: nameId }),
+      meta: h("p", { class: "meta" }),
+      pill: h("span", { class: "pill" }),
+      conn: h("span", { class: "badge conn" }),
+      klippy: h("span", { class: "badge klippy" }),
+      tags: h("span", { class: "tags" }),
+      thumbImg: h("img", { alt: "", decoding: "async", loading: "lazy" }),
+      file: h("p", { class: "file" }),
+      progress: progressBar(),
+      pct: h("span", { class: "pct" }),
+      eta: h("span", { class: "eta" }),
+      layer: h("span", { class: "layer" }),
+      note: h("p", { class: "note", hidden: true }),
+      hotend: h("span", { class: "value" }),
+      hotendTarget: h("span", { class: "target" }),
+      bed: h("span", { class: "value" }),
+      bedTarget: h("span", { class: "target" }),
+      hotendLabel: h("span", { class: "label" }),
+      bedLabel: h("span", { class: "label" }),
+      stale: h("p", { class: "stale", hidden: true }),
+      actions: buildActions(),
+    });
+    r.thumbImg.addEventListener("error", () => {
+      r.thumbImg.hidden = true;
+    });
+    r.thumb = h("div", { class: "thumb" }, r.thumbImg, icon("files"));
+    this.el = h(
+      "article",
+      { class: "tile", dataset: { id: p.id }, "aria-labelledby": nameId },
+      h("header", { class: "tile-head" }, r.select, h("div", { class: "tile-title" }, r.name, r.meta), r.pill),
+      h("div", { class: "badges" }, r.conn, r.klippy, r.tags),
+      h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.layer))),
+      r.note,
+      h(
+        "div",
+        { class: "temps" },
+        h("div", { class: "temp" }, r.hotendLabel, r.hotend, r.hotendTarget),
+        h("div", { class: "temp" }, r.bedLabel, r.bed, r.bedTarget),
+      ),
+      r.stale,
+      r.actions,
+    );
+  }
+
+  update(p, now) {
+    const r = this.refs;
+    const status = statusOf(p);
+    if (this.changed("name", p.name)) {
+      setText(r.name, p.name);
+      r.name.title = p.name;
+    }
+    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+    if (this.changed("meta", `${p.model}|${p.location}`)) setText(r.meta, [p.model, p.location].filter(Boolean).join(" · "));
+    if (this.changed("status", `${status.group}|${status.key}|${t(status.key)}`)) {
+      this.el.dataset.status = status.group;
+      setText(r.pill, t(status.key));
+    }
+    if (this.changed("conn", `${p.connection}|${t("conn." + p.connection)}`)) {
+      r.conn.dataset.conn = p.connection;
+      setText(r.conn, t(`conn.${p.connection}`));
+      r.conn.title = `Moonraker: ${t(`conn.${p.connection}`)}`;
+    }
+    if (this.changed("klippy", `${p.klippy_state}|${t("klippy." + p.klippy_state)}`)) {
+      r.klippy.dataset.klippy = p.klippy_state;
+      setText(r.klippy, t(`klippy.${p.klippy_state}`));
+    }
+    if (this.changed("tags", (p.tags || []).join("\n"))) {
+      r.tags.replaceChildren(...(p.tags || []).map((tag) => h("span", { class: "tag", text: tag })));
+    }
+    this.updateJob(p);
+    const note = noteOf(p);
+    if (this.changed("note", note)) {
+      setText(r.note, note);
+      setHidden(r.note, !note);
+    }
+    if (this.changed("labels", t("temp.hotend"))) {
+      setText(r.hotendLabel, t("temp.hotend"));
+      setText(r.bedLabel, t("temp.bed"));
+    }
+    setText(r.hotend, heaterText(p.extruder));
+    setText(r.hotendTarget, targetText(p.extruder));
+    setText(r.bed, heaterText(p.bed));
+    setText(r.bedTarget, targetText(p.bed));
+    r.hotend.parentElement.classList.toggle("heating", (p.extruder?.target || 0) > 0);
+    r.bed.parentElement.classList.toggle("heating", (p.bed?.target || 0) > 0);
+    this.updateStale(p, now);
+    updateActions(r.actions, p, this.memo);
+  }
+
+  updateJob(p) {
+    const r = this.refs;
+    const job = p.job || {};
+    const present = hasJob(p);
+    this.el.classList.toggle("no-job", !present);
+    if (!present) {
+      if (this.changed("file", `idle|${t("job.none")}`)) {
+        setText(r.file, t("job.none"));
+        r.file.removeAttribute("title");
+      }
+      setProgress(r.progress, 0);
+      setText(r.pct, "");
+      setText(r.eta, "");
+      setText(r.layer, "");
+      this.setThumb(p, null);
+      return;
+    }
+    if (this.changed("file", job.filename)) {
+      setText(r.file, fmt.baseName(job.filename));
+      r.file.title = job.filename;
+    }
+    setProgress(r.progress, job.progress);
+    setAttr(r.progress, "aria-label", t("job.progress"));
+    setText(r.pct, fmt.percent(job.progress));
+    setText(r.eta, etaText(job));
+    setText(r.layer, layerText(job));
+    this.setThumb(p, job.thumbnail);
+  }
+
+  setThumb(p, path) {
+    const img = this.refs.thumbImg;
+    const usable = path && p.connection === "online";
+    const key = usable ? `${p.id}|${path}` : "";
+    if (!this.changed("thumb", key)) return;
+    this.refs.thumb.classList.toggle("has-image", Boolean(usable));
+    if (usable) {
+      img.hidden = false;
+      img.src = api.thumbnailUrl(p.id, path);
+    } else {
+      img.hidden = true;
+      img.removeAttribute("src");
+    }
+  }
+}
+
+export class Row extends Card {
+  constructor(p) {
+    super(p.id);
+    const r = (this.refs = {
+      select: h("input", { type: "checkbox", class: "select", dataset: { select: p.id } }),
+      name: h("span", { class: "name" }),
+      model: h("small", { class: "model" }),
+      pill: h("span", { class: "pill" }),
+      file: h("span", { class: "file" }),
+      note: h("small", { class: "note", hidden: true }),
+      progress: progressBar(),
+      pct: h("span", { class: "pct" }),
+      eta: h("span", { class: "eta" }),
+      hotend: h("span", {}),
+      bed: h("span", {}),
+      location: h("span", {}),
+      stale: h("small", { class: "stale", hidden: true }),
+      actions: buildActions(),
+    });
+    const td = (cls, ...kids) => h("td", { class: cls }, ...kids);
+    this.el = h(
+      "tr",
+      { dataset: { id: p.id } },
+      td("c-select", r.select),
+      h("th", { class: "c-name", scope: "row" }, h("span", { class: "name-cell" }, h("span", { class: "dot", "aria-hidden": "true" }), h("span", { class: "name-box" }, r.name, r.model))),
+      td("c-status", r.pill, r.stale),
+      td("c-job", h("span", { class: "job-line" }, r.file, r.pct), r.progress, r.note),
+      td("c-eta", r.eta),
+      td("c-temp", r.hotend),
+      td("c-temp", r.bed),
+      td("c-loc", r.location),
+      td("c-actions", r.actions),
+    );
+  }
+
+  update(p, now) {
+    const r = this.refs;
+    const status = statusOf(p);
+    if (this.changed("name", p.name)) setText(r.name, p.name);
+    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+    setText(r.model, p.model);
+    setText(r.location, p.location);
+    if (this.changed("status", `${status.group}|${t(status.key)}`)) {
+      this.el.dataset.status = status.group;
+      setText(r.pill, t(status.key));
+    }
+    const job = p.job || {};
+    const present = hasJob(p);
+    setText(r.file, present ? fmt.baseName(job.filename) : "");
+    if (present) r.file.title = job.filename;
+    setHidden(r.progress, !present);
+    if (present) setProgress(r.progress, job.progress);
+    setText(r.pct, present ? fmt.percent(job.progress) : "");
+    setText(r.eta, etaText(job) || (present ? "" : "—"));
+    const note = noteOf(p);
+    setText(r.note, note);
+    setHidden(r.note, !note);
+    setText(r.hotend, `${heaterText(p.extruder)} ${targetText(p.extruder)}`.trim());
+    setText(r.bed, `${heaterText(p.bed)} ${targetText(p.bed)}`.trim());
+    this.updateStale(p, now);
+    updateActions(r.actions, p, this.memo);
+  }
+}

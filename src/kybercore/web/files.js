@@ -1,0 +1,196 @@
+// A printer's files: size, date and estimated time (metadata fetched lazily, only for the
+// rows on screen), print a file, and drag-and-drop upload with a progress bar.
+import { confirmWarnings, startPrint, warningsOf } from "./actions.js";
+import { api } from "./api.js";
+import { toast } from "./dialogs.js";
+import { h, icon, setHidden } from "./dom.js";
+import * as fmt from "./format.js";
+import { messageOf, t } from "./i18n.js";
+import { can } from "./session.js";
+import { printers } from "./store.js";
+import { dropZone, uploadTo } from "./uploads.js";
+
+const PAGE = 100;
+const META_PARALLEL = 3;
+let state = null; // {id, panel, files, shown, observer, queue, active, body}
+
+/** Fill `panel` with printer `id`'s files and the upload zone. */
+export function showFiles(panel, id) {
+  state?.observer?.disconnect();
+  const filter = h("input", { type: "search", class: "files-filter", placeholder: t("files.filter"), "aria-label": t("files.filter") });
+  const refresh = h("button", { type: "button", class: "btn small", onclick: () => load() }, icon("refresh"), h("span", { text: t("files.refresh") }));
+  const startBox = h("input", { type: "checkbox" });
+  const bar = h("span", { class: "bar" });
+  const progress = h("div", { class: "progress", role: "progressbar", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0", "aria-label": t("upload.progress"), hidden: true }, bar);
+  const status = h("p", { class: "upload-status", role: "status" });
+  const { zone } = dropZone((files) => uploadHere(files[0]));
+  const body = h("tbody");
+  const table = h(
+    "table",
+    { class: "files-table" },
+    h("thead", {}, h("tr", {}, ["files.name", "files.size", "files.modified", "files.estimated", ""].map((key) => h("th", { scope: "col", text: key ? t(key) : "" })))),
+    body,
+  );
+  const more = h("button", { type: "button", class: "btn small ghost", hidden: true, text: t("files.more"), onclick: () => render(state.shown + PAGE) });
+  const message = h("p", { class: "files-message", role: "status" });
+  panel.replaceChildren(
+    h("div", { class: "upload-box", hidden: !can("operator") }, zone, h("label", { class: "check" }, startBox, h("span", { text: t("upload.start_after") })), progress, status),
+    h("div", { class: "files-toolbar" }, filter, refresh),
+    message,
+    h("div", { class: "table-scroll" }, table),
+    more,
+  );
+  const observer = new IntersectionObserver(onVisible, { root: panel.closest(".drawer-body") || null });
+  state = { id, panel, files: [], shown: 0, observer, queue: [], active: 0, body, more, message, filter, meta: new Map() };
+  filter.addEventListener("input", () => render(PAGE));
+  panel.addEventListener("click", (event) => {
+    const button = event.target.closest("button[data-print]");
+    if (button) startPrint(id, button.dataset.print);
+  });
+
+  async function uploadHere(file) {
+    setHidden(progress, false);
+    bar.style.width = "0%";
+    status.textContent = t("upload.sending", { filename: file.name });
+    const start = startBox.checked;
+    const outcome = await uploadTo(id, file, {
+      start,
+      onProgress: (fraction) => {
+        bar.style.width = `${Math.round(fraction * 100)}%`;
+        progress.setAttribute("aria-valuenow", String(Math.round(fraction * 100)));
+      },
+    });
+    if (outcome.ok) {
+      bar.style.width = "100%";
+      status.textContent = outcome.message;
+      toast({ kind: "ok", title: printers.get(id)?.name || id, message: outcome.message });
+    } else if (outcome.needsConfirm) {
+      status.textContent = t("upload.needs_confirm");
+      const reasons = await warningsOf(id, "start", { filename: file.name }, outcome.error);
+      if (await confirmWarnings(id, reasons)) {
+        try {
+          await api.act(id, "start", { filename: file.name, confirm: true });
+          status.textContent = t("done.upload_start", { filename: file.name });
+        } catch (error) {
+          status.textContent = messageOf(error);
+        }
+      } else status.textContent = t("upload.not_started");
+    } else {
+      status.textContent = messageOf(outcome.error);
+      toast({ kind: "error", title: printers.get(id)?.name || id, message: messageOf(outcome.error) });
+    }
+    load();
+  }
+
+  load();
+  return filter;
+}
+
+function canStart(id) {
+  return can("operator") && Boolean(printers.get(id)?.actions?.start);
+}
+
+export function hideFiles() {
+  state?.observer?.disconnect();
+  state = null;
+}
+
+/** Enable the print buttons only while the printer can start a print. */
+export function refreshFileButtons() {
+  if (!state) return;
+  const allowed = canStart(state.id);
+  for (const button of state.body.querySelectorAll("button[data-print]")) button.disabled = !allowed;
+}
+
+async function load() {
+  const mine = state;
+  if (!mine) return;
+  mine.message.textContent = t("files.loading");
+  try {
+    mine.files = await api.files(mine.id);
+  } catch (error) {
+    if (state !== mine) return;
+    mine.files = [];
+    mine.message.textContent = messageOf(error);
+    render(0);
+    return;
+  }
+  if (state !== mine) return;
+  mine.message.textContent = mine.files.length ? "" : t("files.empty");
+  render(PAGE);
+}
+
+function render(count) {
+  const s = state;
+  const words = s.filter.value.trim().toLowerCase();
+  const list = words ? s.files.filter((f) => f.path.toLowerCase().includes(words)) : s.files;
+  s.shown = Math.min(count, list.length);
+  s.observer.disconnect();
+  s.queue = [];
+  const allowed = canStart(s.id);
+  const rows = list.slice(0, s.shown).map((file) => {
+    const estimate = h("td", { class: "c-est" });
+    const thumb = h("span", { class: "file-thumb" });
+    const row = h(
+      "tr",
+      { dataset: { file: file.path } },
+      h("th", { scope: "row", class: "c-file" }, h("span", { class: "file-cell" }, thumb, h("span", { class: "file-name", text: file.path, title: file.path }))),
+      h("td", { class: "c-size", text: fmt.size(file.size) }),
+      h("td", { class: "c-date", text: fmt.dateTime(file.modified) }),
+      estimate,
+      h(
+        "td",
+        { class: "c-print" },
+        h("button", { type: "button", class: "btn small primary", dataset: { print: file.path }, disabled: !allowed, "aria-label": t("files.print_named", { filename: file.path }) }, icon("start"), h("span", { text: t("files.print") })),
+      ),
+    );
+    row._fill = (meta) => fillMeta(s.id, meta, estimate, thumb);
+    const known = s.meta.get(`${file.path}|${file.modified}`);
+    if (known) row._fill(known);
+    else s.observer.observe(row);
+    return row;
+  });
+  s.body.replaceChildren(...rows);
+  setHidden(s.more, s.shown >= list.length);
+}
+
+function fillMeta(id, meta, estimate, thumb) {
+  estimate.textContent = typeof meta.estimated_time === "number" ? fmt.duration(meta.estimated_time) : "—";
+  const thumbs = (meta.thumbnails || []).filter((x) => x.relative_path).sort((a, b) => a.width - b.width);
+  const pick = thumbs.find((x) => x.width >= 32) || thumbs[thumbs.length - 1];
+  if (pick && !thumb.firstChild) thumb.append(h("img", { src: api.thumbnailUrl(id, pick.relative_path), alt: "", loading: "lazy" }));
+}
+
+function onVisible(entries) {
+  const s = state;
+  if (!s) return;
+  for (const entry of entries) {
+    if (!entry.isIntersecting) continue;
+    s.observer.unobserve(entry.target);
+    s.queue.push(entry.target);
+  }
+  pump(s);
+}
+
+/** Fetch metadata a few at a time (a printer with 670 files must not get 670 requests at once). */
+function pump(s) {
+  while (s.active < META_PARALLEL && s.queue.length) {
+    const row = s.queue.shift();
+    const path = row.dataset.file;
+    const file = s.files.find((f) => f.path === path);
+    s.active += 1;
+    api
+      .metadata(s.id, path)
+      .then(
+        (meta) => {
+          if (file) s.meta.set(`${file.path}|${file.modified}`, meta);
+          row._fill?.(meta);
+        },
+        () => row._fill?.({}),
+      )
+      .finally(() => {
+        s.active -= 1;
+        if (state === s) pump(s);
+      });
+  }
+}

@@ -1,0 +1,97 @@
+// The one WebSocket to the backend: snapshot, deltas and events; reconnects by itself with
+// backoff and resyncs from the next snapshot. Status goes to onStatus for the banner.
+import { applyDelta, applySnapshot, noteServerTime, resetSequence } from "./store.js";
+
+const BACKOFF = [500, 1000, 2000, 3000, 5000];
+const SILENCE_MS = 25000; // heartbeats come every 10 s when idle
+
+let socket = null;
+let attempt = 0;
+let consoleIds = [];
+let watchdog = null;
+let retryTimer = null;
+let handlers = { onEvent: () => {}, onStatus: () => {} };
+
+/** Start the connection. onStatus({state: "connecting"|"live"|"down", retryAt, since}). */
+export function startLive(options) {
+  handlers = { ...handlers, ...options };
+  connect();
+}
+
+/** Ask for the G-code responses of these printers (kept across reconnects). */
+export function watchConsole(ids) {
+  consoleIds = [...ids];
+  send({ type: "console", printers: consoleIds });
+}
+
+/** Reconnect now instead of waiting for the backoff. */
+export function reconnectNow() {
+  if (socket) return;
+  clearTimeout(retryTimer);
+  connect();
+}
+
+function send(frame) {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(frame));
+}
+
+function connect() {
+  retryTimer = null;
+  handlers.onStatus({ state: "connecting", attempt });
+  const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
+  const ws = new WebSocket(url);
+  socket = ws;
+  ws.addEventListener("open", () => {
+    if (consoleIds.length) send({ type: "console", printers: consoleIds });
+    armWatchdog();
+  });
+  ws.addEventListener("message", (event) => {
+    if (ws !== socket) return;
+    armWatchdog();
+    let frame;
+    try {
+      frame = JSON.parse(event.data);
+    } catch {
+      return;
+    }
+    receive(frame, ws);
+  });
+  ws.addEventListener("close", () => lost(ws));
+}
+
+/** The socket is gone (closed, silent, or out of step): show it, and retry with backoff. */
+function lost(ws) {
+  if (ws !== socket) return;
+  socket = null;
+  clearTimeout(watchdog);
+  resetSequence();
+  if (ws.readyState === WebSocket.CONNECTING || ws.readyState === WebSocket.OPEN) ws.close();
+  const delay = BACKOFF[Math.min(attempt, BACKOFF.length - 1)] * (0.8 + Math.random() * 0.4);
+  attempt += 1;
+  handlers.onStatus({ state: "down", retryAt: Date.now() + delay, attempt });
+  retryTimer = setTimeout(connect, delay);
+}
+
+function receive(frame, ws) {
+  switch (frame.type) {
+    case "snapshot":
+      attempt = 0;
+      applySnapshot(frame);
+      handlers.onStatus({ state: "live" });
+      break;
+    case "delta":
+      if (!applyDelta(frame)) lost(ws); // a frame went missing: resync from a snapshot
+      break;
+    case "heartbeat":
+      noteServerTime(frame.time);
+      break;
+    default:
+      handlers.onEvent(frame);
+  }
+}
+
+function armWatchdog() {
+  clearTimeout(watchdog);
+  const ws = socket;
+  watchdog = setTimeout(() => lost(ws), SILENCE_MS);
+}

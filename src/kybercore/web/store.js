@@ -1,0 +1,182 @@
+// Fleet state: the printers as the backend publishes them over /ws, plus pure helpers
+// (status, filtering, sorting) that the views share. No DOM here.
+
+/** id -> printer view, exactly as the backend sent it (deltas merged in). */
+export const printers = new Map();
+
+const listeners = new Set();
+let seq = null;
+let skew = 0; // server clock minus browser clock, in seconds (from heartbeats)
+
+/** Be told about every change: {full, changed: Set, removed: Set, transitions: []}. */
+export function subscribe(fn) {
+  listeners.add(fn);
+  return () => listeners.delete(fn);
+}
+
+function emit(change) {
+  for (const fn of listeners) fn(change);
+}
+
+/** Replace the whole state (first frame, and whenever the server resyncs us). */
+export function applySnapshot(frame) {
+  const removed = new Set(printers.keys());
+  printers.clear();
+  for (const view of frame.printers || []) {
+    printers.set(view.id, view);
+    removed.delete(view.id);
+  }
+  seq = frame.seq;
+  emit({ full: true, changed: new Set(printers.keys()), removed, transitions: [] });
+}
+
+/** Merge a delta; false when a frame is missing (the caller resyncs). */
+export function applyDelta(frame) {
+  if (seq !== null && frame.seq !== seq + 1) return false;
+  seq = frame.seq;
+  const changed = new Set();
+  const transitions = [];
+  for (const [id, patch] of Object.entries(frame.printers || {})) {
+    const current = printers.get(id);
+    if (current === undefined) {
+      printers.set(id, patch);
+    } else {
+      const before = current.job?.state;
+      merge(current, patch);
+      const after = current.job?.state;
+      if (before !== after) transitions.push({ id, from: before, to: after });
+    }
+    changed.add(id);
+  }
+  const removed = new Set(frame.removed || []);
+  for (const id of removed) printers.delete(id);
+  if (changed.size || removed.size) emit({ full: false, changed, removed, transitions });
+  return true;
+}
+
+/** Forget the sequence (the socket closed); the next snapshot starts afresh. */
+export function resetSequence() {
+  seq = null;
+}
+
+/** Deep merge: objects key by key, arrays and scalars replaced. */
+export function merge(target, patch) {
+  for (const [key, value] of Object.entries(patch)) {
+    const old = target[key];
+    if (isObject(value) && isObject(old)) merge(old, value);
+    else target[key] = value;
+  }
+  return target;
+}
+
+function isObject(value) {
+  return value !== null && typeof value === "object" && !Array.isArray(value);
+}
+
+export function noteServerTime(serverTime) {
+  if (typeof serverTime === "number") skew = serverTime - Date.now() / 1000;
+}
+
+/** Now, in the server's clock (unix seconds). */
+export function serverNow() {
+  return Date.now() / 1000 + skew;
+}
+
+// -- derived state -------------------------------------------------------------------------
+
+export const GROUPS = ["printing", "paused", "error", "ready", "offline"];
+
+/** What the tile's color and the state filter use: {group, key (an i18n key)}. */
+export function statusOf(p) {
+  const conn = p.connection;
+  if (conn === "disabled") return { group: "offline", key: "status.disabled" };
+  if (conn === "auth_failed") return { group: "error", key: "status.auth_failed" };
+  if (conn === "connecting") return { group: "offline", key: "status.connecting" };
+  if (conn !== "online") return { group: "offline", key: "status.offline" };
+  const klippy = p.klippy_state;
+  if (klippy === "shutdown") return { group: "error", key: "status.shutdown" };
+  if (klippy === "error") return { group: "error", key: "status.klippy_error" };
+  if (klippy === "startup") return { group: "offline", key: "status.startup" };
+  if (klippy !== "ready") return { group: "offline", key: "status.klippy_disconnected" };
+  const job = p.job?.state;
+  if (job === "printing") return { group: "printing", key: "status.printing" };
+  if (job === "paused") return { group: "paused", key: "status.paused" };
+  if (job === "error") return { group: "error", key: "status.print_error" };
+  if (job === "complete") return { group: "ready", key: "status.complete" };
+  if (job === "cancelled") return { group: "ready", key: "status.cancelled" };
+  return { group: "ready", key: "status.ready" };
+}
+
+export const STALE_SECONDS = 10;
+
+/**
+ * Seconds since the last message from Moonraker when that matters, else null.
+ * An idle printer whose session is up sends nothing while nothing changes, so its age
+ * means nothing; it does for a printer that is not online, or that is printing (whose
+ * progress and durations change all the time).
+ */
+export function staleAge(p, now = serverNow()) {
+  if (!p.updated_at) return null;
+  const age = now - p.updated_at;
+  if (age < STALE_SECONDS) return null;
+  const busy = p.job?.state === "printing" || p.job?.state === "paused";
+  return p.connection !== "online" || busy ? age : null;
+}
+
+/** Whether a printer passes the filters {q, state, tag, location}. */
+export function matches(p, f) {
+  if (f.state && statusOf(p).group !== f.state) return false;
+  if (f.tag && !(p.tags || []).includes(f.tag)) return false;
+  if (f.location && p.location !== f.location) return false;
+  if (f.q) {
+    const hay = [p.id, p.name, p.model, p.location, p.job?.filename, ...(p.tags || [])]
+      .join(" ")
+      .toLowerCase();
+    for (const word of f.q.toLowerCase().split(/\s+/)) {
+      if (word && !hay.includes(word)) return false;
+    }
+  }
+  return true;
+}
+
+const GROUP_ORDER = { error: 0, paused: 1, printing: 2, ready: 3, offline: 4 };
+const byName = (a, b) => a.name.localeCompare(b.name, undefined, { numeric: true }) || a.id.localeCompare(b.id);
+
+/** A comparator for the sort select. */
+export function comparator(sort) {
+  switch (sort) {
+    case "status":
+      return (a, b) => GROUP_ORDER[statusOf(a).group] - GROUP_ORDER[statusOf(b).group] || byName(a, b);
+    case "progress":
+      return (a, b) => (b.job?.progress || 0) - (a.job?.progress || 0) || byName(a, b);
+    case "eta":
+      return (a, b) => etaKey(a) - etaKey(b) || byName(a, b);
+    case "location":
+      return (a, b) => (a.location || "").localeCompare(b.location || "") || byName(a, b);
+    default:
+      return byName;
+  }
+}
+
+function etaKey(p) {
+  const eta = p.job?.eta_seconds;
+  return typeof eta === "number" ? eta : Number.POSITIVE_INFINITY;
+}
+
+/** The values the sort and filters read: when they change, the order may change. */
+export function orderKey(p) {
+  const s = statusOf(p);
+  return `${s.group}|${p.name}|${p.location}|${(p.tags || []).join(",")}|${p.job?.filename}|${Math.round((p.job?.progress || 0) * 100)}|${p.job?.eta_seconds}`;
+}
+
+/** Every distinct tag and location, sorted (for the filter menus). */
+export function facets() {
+  const tags = new Set();
+  const locations = new Set();
+  for (const p of printers.values()) {
+    for (const tag of p.tags || []) tags.add(tag);
+    if (p.location) locations.add(p.location);
+  }
+  const sort = (set) => [...set].sort((a, b) => a.localeCompare(b));
+  return { tags: sort(tags), locations: sort(locations) };
+}

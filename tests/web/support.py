@@ -1,0 +1,94 @@
+"""Helpers of the browser tests: set the real printers up through the REST API, wait for
+the dashboard, find tiles."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+from playwright.sync_api import Locator, Page, expect
+
+from tests.helpers import KyberCoreServer, travel_gcode
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+FLEET = ("fleet-a", "fleet-b", "fleet-c")
+BUSY = ("printing", "paused")
+SAMPLES = Path(__file__).resolve().parents[2] / "src/kybercore/sim/samples"
+SAMPLE = SAMPLES / "calibration_cube_20mm_pla.gcode"
+
+
+def make_idle(server: KyberCoreServer, api: httpx.Client) -> None:
+    """Leave fleet-a/b/c online, Klippy ready, not printing, heaters off, job forgotten."""
+    server.wait_online(len(FLEET), timeout=60)
+    for printer_id in FLEET:
+        view = api.get(f"/api/printers/{printer_id}").json()
+        if view["job"]["state"] in BUSY:
+            api.post(f"/api/printers/{printer_id}/actions/cancel", json={})
+        if (view["extruder"]["target"] or 0) > 0 or (view["bed"]["target"] or 0) > 0:
+            api.post(
+                f"/api/printers/{printer_id}/actions/set_temperature",
+                json={"extruder": 0, "bed": 0},
+            )
+
+    def idle(printer_id: str) -> bool:
+        view = api.get(f"/api/printers/{printer_id}").json()
+        return view["klippy_state"] == "ready" and view["job"]["state"] not in BUSY
+
+    wait_until(lambda: all(idle(p) for p in FLEET), timeout=30, what="fleet idle")
+    # Forget the last job (cancelled, complete): tiles start from "Ready", no file shown.
+    for printer_id in FLEET:
+        if api.get(f"/api/printers/{printer_id}").json()["job"]["state"] != "standby":
+            answer = api.post(
+                f"/api/printers/{printer_id}/gcode", json={"script": "SDCARD_RESET_FILE"}
+            )
+            assert answer.status_code == 200, answer.text
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 15, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.1)
+
+
+def thumbnail_block() -> str:
+    """The PrusaSlicer thumbnail comment block of a sample file."""
+    lines = SAMPLE.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("; thumbnail begin"))
+    end = next(i for i, line in enumerate(lines) if line.startswith("; thumbnail end"))
+    return "\n".join(lines[start : end + 1])
+
+
+def slow_print(moves: int = 60) -> bytes:
+    """A travel-only file (no heating) with a thumbnail: slow enough to pause and cancel."""
+    header, _, rest = travel_gcode(moves).decode().partition("\n")
+    return f"{header}\n;\n{thumbnail_block()}\n\n{rest}".encode()
+
+
+def start_print(api: httpx.Client, printer_id: str, filename: str, moves: int = 60) -> None:
+    """Upload ``filename`` and start printing it, through the REST API."""
+    answer = api.post(
+        f"/api/printers/{printer_id}/files",
+        files={"file": (filename, slow_print(moves), "application/octet-stream")},
+        data={"start": "true", "confirm": "true"},
+    )
+    assert answer.status_code == 201, answer.text
+    wait_until(
+        lambda: api.get(f"/api/printers/{printer_id}").json()["job"]["state"] == "printing",
+        what=f"{printer_id} printing",
+    )
+
+
+def open_fleet(page: Page, url: str, count: int = 3) -> None:
+    """Load the dashboard and wait until it is live with ``count`` tiles."""
+    page.goto(url)
+    page.locator("#live[data-state=live]").wait_for()
+    expect(page.locator(".tile")).to_have_count(count)
+
+
+def tile(page: Page, printer_id: str) -> Locator:
+    return page.locator(f'.tile[data-id="{printer_id}"]')

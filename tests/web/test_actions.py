@@ -1,0 +1,117 @@
+"""Actions from the dashboard reach the real printers, and refusals show the backend's words."""
+
+from __future__ import annotations
+
+import re
+
+import httpx
+import pytest
+from playwright.sync_api import Page, expect
+
+from tests.helpers import KyberCoreServer
+from tests.web.conftest import ConsoleErrors
+from tests.web.support import open_fleet, start_print, tile
+
+pytestmark = pytest.mark.browser
+
+
+def job_state(api: httpx.Client, printer_id: str) -> str:
+    state: str = api.get(f"/api/printers/{printer_id}").json()["job"]["state"]
+    return state
+
+
+def test_pausing_from_the_ui_pauses_the_real_printer(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    open_fleet(page, kybercore_server.url)
+    page.evaluate("window.__sameDocument = true")
+    card = tile(page, "fleet-a")
+    pause, resume, cancel = (
+        card.locator(f"[data-action={a}]") for a in ("pause", "resume", "cancel")
+    )
+    # Idle: nothing to pause, resume or cancel.
+    for button in (pause, resume, cancel):
+        expect(button).to_be_disabled()
+
+    start_print(api, "fleet-a", "web_pause_test.gcode")
+    expect(card.locator(".pill")).to_have_text("Printing")
+    expect(card.locator(".file")).to_have_text("web_pause_test.gcode")
+    expect(card.locator(".thumb img")).to_be_visible()
+    expect(pause).to_be_enabled()
+    expect(resume).to_be_disabled()
+    expect(pause).to_have_attribute("aria-label", "Pause — Printer A")
+
+    pause.click()
+    expect(card.locator(".pill")).to_have_text("Paused", timeout=20_000)
+    assert job_state(api, "fleet-a") == "paused"
+    expect(page.locator(".toast.ok", has_text="Print paused.")).to_be_visible()
+    expect(resume).to_be_enabled()
+    expect(pause).to_be_disabled()
+
+    # Cancel asks first; backing out leaves the print alone.
+    cancel.click()
+    dialog = page.get_by_role("dialog", name="Cancel the print on Printer A?")
+    expect(dialog).to_be_visible()
+    dialog.get_by_role("button", name="Back").click()
+    expect(dialog).to_be_hidden()
+    assert job_state(api, "fleet-a") == "paused"
+
+    cancel.click()
+    dialog.get_by_role("button", name="Cancel print").click()
+    expect(card.locator(".pill")).to_have_text("Cancelled", timeout=20_000)
+    assert job_state(api, "fleet-a") == "cancelled"
+    expect(cancel).to_be_disabled()
+    assert page.evaluate("window.__sameDocument") is True
+
+
+def test_an_invalid_action_shows_the_backends_error(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    console_errors: ConsoleErrors,
+) -> None:
+    # What the backend says when asked to pause an idle printer.
+    refusal = api.post("/api/printers/fleet-b/actions/pause", json={})
+    assert refusal.status_code == 409
+    reason = refusal.json()["error"]["reasons"][0]
+
+    open_fleet(page, kybercore_server.url)
+    page.get_by_role("checkbox", name="Select Printer B").check()
+    bar = page.get_by_role("region", name="Bulk actions")
+    expect(bar.locator(".bulk-count")).to_have_text("1 selected")
+    bar.locator("[data-bulk=pause]").click()
+
+    # The dry run already says it will refuse, and why.
+    preview = page.get_by_role("dialog", name="Pause: 1 printer(s)")
+    expect(preview.locator("[data-printer=fleet-b]")).to_contain_text("will refuse")
+    expect(preview.locator("[data-printer=fleet-b]")).to_contain_text(reason["en"])
+    preview.get_by_role("button", name="Pause on 1").click()
+
+    # Sent anyway: the real answer, per printer, with its status and code.
+    results = page.get_by_role("dialog", name="Pause: results")
+    row = results.locator("[data-printer=fleet-b]")
+    expect(row).to_contain_text("409 · pause_not_printing")
+    expect(row).to_contain_text(reason["en"])
+    expect(results).to_contain_text("Done on 0 of 1 printers.")
+    results.get_by_role("button", name="Close", exact=True).click()
+    assert job_state(api, "fleet-b") not in ("printing", "paused")
+
+    # In Spanish, the console shows the backend's Spanish reason for a refused G-code.
+    page.select_option("#lang", "es")
+    m112 = api.post("/api/printers/fleet-c/gcode", json={"script": "M112"})
+    assert m112.status_code == 422
+    spanish = m112.json()["error"]["reasons"][0]["es"]
+    console_errors.expect(r"status of 422 .*/api/printers/fleet-c/gcode")
+    tile(page, "fleet-c").locator("[data-action=console]").click()
+    drawer = page.get_by_role("dialog", name="Printer C")
+    expect(drawer.get_by_role("tab", name="Consola")).to_have_attribute("aria-selected", "true")
+    command = drawer.get_by_role("textbox", name="Comando G-code")
+    command.fill("M112")
+    command.press("Enter")
+    log = drawer.get_by_role("log")
+    expect(log.locator(".line.error")).to_have_text(re.compile(re.escape(spanish)))
+    # A harmless command: sent, answered live through the console subscription.
+    command.fill("M115")
+    command.press("Enter")
+    expect(log.locator(".line.response", has_text="FIRMWARE_NAME")).to_be_visible()
+    expect(log.locator(".line.ok")).to_have_text(re.compile("hecho: M115"))
