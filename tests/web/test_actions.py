@@ -48,12 +48,16 @@ def test_pausing_from_the_ui_pauses_the_real_printer(
     expect(resume).to_be_enabled()
     expect(pause).to_be_disabled()
 
-    # Cancel asks first; backing out leaves the print alone.
-    cancel.click()
+    # Cancel asks first, in a modal driven from the keyboard: the safe choice has the focus,
+    # Escape backs out, focus returns to the button, and the print is left alone.
+    cancel.focus()
+    page.keyboard.press("Enter")
     dialog = page.get_by_role("dialog", name="Cancel the print on Printer A?")
     expect(dialog).to_be_visible()
-    dialog.get_by_role("button", name="Back").click()
+    expect(dialog.get_by_role("button", name="Back")).to_be_focused()
+    page.keyboard.press("Escape")
     expect(dialog).to_be_hidden()
+    expect(cancel).to_be_focused()
     assert job_state(api, "fleet-a") == "paused"
 
     cancel.click()
