@@ -281,3 +281,37 @@ async def test_openapi_documents_every_endpoint_and_model(api: httpx.AsyncClient
     for path, methods in spec["paths"].items():
         for method, operation in methods.items():
             assert operation.get("description") or operation.get("summary"), (method, path)
+
+
+async def test_warnings_need_confirmation_and_say_why(api: httpx.AsyncClient) -> None:
+    script = {"script": "G90\nG1 X1000 F3000"}  # beyond fleet-a's 220 mm
+    answer = await api.post("/api/printers/fleet-a/gcode", json=script)
+    assert answer.status_code == 409
+    error = answer.json()["error"]
+    assert error["code"] == "confirmation_required"
+    assert [r["code"] for r in error["reasons"]] == ["gcode_move_outside_volume"]
+    assert error["reasons"][0]["es"]
+
+
+async def test_invalid_fields_are_named_in_both_languages(api: httpx.AsyncClient) -> None:
+    answer = await api.post("/api/printers", json={"name": "", "moonraker_url": "ftp://x"})
+    assert answer.status_code == 422
+    fields = {f["field"]: f for f in answer.json()["error"]["fields"]}
+    assert set(fields) == {"name", "moonraker_url"}
+    assert "http://" in fields["moonraker_url"]["en"]
+    assert fields["name"]["es"] == "Es demasiado corto."
+
+
+async def test_delete_a_file_but_never_outside_the_gcodes_folder(api: httpx.AsyncClient) -> None:
+    name = f"delete-me-{uuid.uuid4().hex[:6]}.gcode"
+    files = {"file": (name, travel_gcode(moves=2))}
+    assert (await api.post("/api/printers/fleet-c/files", files=files)).status_code == 201
+    assert (
+        await api.delete("/api/printers/fleet-c/files", params={"path": name})
+    ).status_code == 204
+    assert name not in [f["path"] for f in (await api.get("/api/printers/fleet-c/files")).json()]
+    escape = await api.delete(
+        "/api/printers/fleet-c/files", params={"path": "../config/printer.cfg"}
+    )
+    assert escape.status_code == 422
+    assert "not a valid file name" in escape.json()["error"]["message"]

@@ -115,12 +115,23 @@ class FleetCheckResult(BaseModel):
     results: list[CheckResult]
 
 
+class FieldError(BaseModel):
+    """What is wrong with one field of the request (422 answers)."""
+
+    field: str = Field(description="Dotted path of the field, e.g. 'capabilities.material'.")
+    en: str
+    es: str
+
+
 class ErrorBody(BaseModel):
     """Every error answer: ``{"error": {...}}``."""
 
     code: str
     message: str
     reasons: list[ReasonOut] = Field(default_factory=list)
+    fields: list[FieldError] = Field(
+        default_factory=list, description="Per-field problems of an invalid request."
+    )
 
 
 class ErrorResponse(BaseModel):

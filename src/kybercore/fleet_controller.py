@@ -254,6 +254,17 @@ def _routes(app: FastAPI) -> None:
         """The printer's G-code files, newest first."""
         return await _service(request).files(printer_id)
 
+    @app.delete(
+        "/api/printers/{printer_id}/files",
+        status_code=204,
+        responses=_ERRORS,
+        dependencies=[OPERATOR],
+    )
+    async def delete_file(request: Request, printer_id: str, path: str) -> Response:
+        """Delete a G-code file (refused while it is being printed)."""
+        await _service(request).delete_file(printer_id, _safe_path(path))
+        return Response(status_code=204)
+
     @app.get("/api/printers/{printer_id}/files/metadata", responses=_ERRORS, dependencies=[VIEWER])
     async def file_metadata(request: Request, printer_id: str, filename: str) -> dict[str, Any]:
         """What the slicer wrote in a file's header, as Moonraker parsed it."""
@@ -409,13 +420,41 @@ async def _kybercore_error(_request: Request, exc: KyberCoreError) -> Response:
     return _error(status, code, exc.message, exc.reasons)
 
 
+# Spanish for the validation errors people meet in forms; anything else gets the generic one.
+_ES_FIELD_ERRORS: Final = {
+    "missing": "Falta este campo.",
+    "string_too_short": "Es demasiado corto.",
+    "string_too_long": "Es demasiado largo.",
+    "string_pattern_mismatch": "El formato no es válido.",
+    "extra_forbidden": "Este campo no existe.",
+    "json_invalid": "El JSON no es válido.",
+    "greater_than": "El valor es demasiado pequeño.",
+    "greater_than_equal": "El valor es demasiado pequeño.",
+    "less_than": "El valor es demasiado grande.",
+    "less_than_equal": "El valor es demasiado grande.",
+    "too_long": "Hay demasiados elementos.",
+}
+
+
 async def _validation_error(_request: Request, exc: RequestValidationError) -> Response:
     # Built from locations and messages only: the input itself may hold an API key.
-    problems = []
+    fields = []
     for error in exc.errors():
-        where = ".".join(str(part) for part in error.get("loc", ()) if part != "body")
-        problems.append(f"{where or 'body'}: {error.get('msg', 'invalid')}")
-    return _error(422, "invalid_input", "Invalid request. " + "; ".join(problems))
+        where = ".".join(str(part) for part in error.get("loc", ()) if part != "body") or "body"
+        message = str(error.get("msg", "invalid"))
+        kind = str(error.get("type", ""))
+        spanish = _ES_FIELD_ERRORS.get(kind, f"El valor no es válido ({message}).")
+        fields.append({"field": where, "en": message, "es": spanish})
+    summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
+    body = {
+        "error": {
+            "code": "invalid_input",
+            "message": f"Invalid request. {summary}",
+            "reasons": [],
+            "fields": fields,
+        }
+    }
+    return ORJSONResponse(body, status_code=422)
 
 
 async def _http_error(_request: Request, exc: StarletteHTTPException) -> Response:

@@ -377,6 +377,18 @@ class FleetService:
         files = await self.client(printer_id).files_list()
         return sorted(files, key=lambda f: f.get("modified", 0), reverse=True)
 
+    async def delete_file(self, printer_id: str, path: str) -> None:
+        """Delete a G-code file, unless it is the one being printed."""
+        printer = self._get(printer_id)
+        stats = printer.live.status.get("print_stats", {})
+        if stats.get("filename") == path and stats.get("state") in ("printing", "paused"):
+            raise ActionRejected(
+                f"{printer_id} is printing '{path}'. Cancel the print before deleting the file.",
+                code="file_in_use",
+            )
+        await self.client(printer_id).delete_file(path)
+        self._announce(printer_id, "delete_file", f"Deleted {path}.")
+
     async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
         """Moonraker's metadata of one file."""
         return await self.client(printer_id).file_metadata(filename)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -217,8 +218,12 @@ class PrinterStack:
         self._check_not_running(name)
         logfile = open(self.data_dir / "logs" / f"{name}.out", "ab")  # noqa: SIM115
         self._logs.append(logfile)
+        # Moonraker names upload temp files after the clock: printers sharing /tmp collide.
+        tmp = self.data_dir / "tmp"
+        tmp.mkdir(exist_ok=True)
         self._procs[name] = subprocess.Popen(
             command,
+            env={**os.environ, "TMPDIR": str(tmp)},
             stdout=logfile,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
