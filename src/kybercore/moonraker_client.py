@@ -7,6 +7,8 @@ happened and what to do; no method returns ``None`` to mean "it failed".
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hashlib
 import logging
 import os
@@ -39,6 +41,12 @@ GCODE_TIMEOUT: Final = httpx.Timeout(600.0, connect=3.0)
 UPLOAD_TIMEOUT: Final = httpx.Timeout(300.0, connect=3.0)
 # Pause and cancel wait for the moves already queued (and a G28 in progress) to finish.
 ACTION_TIMEOUT: Final = httpx.Timeout(60.0, connect=3.0)
+# A slow answer is normal (G28, M109); a frozen Moonraker is not. While a request waits,
+# Moonraker is probed every PROBE_AFTER s (a ping over the live session, else a small HTTP
+# request); nothing back within PROBE_TIMEOUT s fails the request as unreachable (HTTP 503)
+# instead of leaving it to wait minutes for its own timeout.
+PROBE_AFTER: Final = 1.5
+PROBE_TIMEOUT: Final = 2.0
 
 FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "webhooks": ["state", "state_message"],
@@ -258,8 +266,12 @@ class MoonrakerClient:
 
     async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         url = self.base_url + path
+        request = asyncio.ensure_future(
+            self._http.request(method, url, headers=self._headers, **kwargs)
+        )
         try:
-            response = await self._http.request(method, url, headers=self._headers, **kwargs)
+            await self._wait_while_alive(request, method, path)
+            response = await request
         except httpx.TimeoutException as exc:
             raise PrinterTimeout(
                 f"Moonraker at {self.base_url} did not answer {method} {path} in time. "
@@ -269,9 +281,46 @@ class MoonrakerClient:
         except httpx.TransportError as exc:
             problem = _transport_problem(self.base_url, exc)
             raise PrinterUnreachable(problem, printer=self.name) from exc
+        finally:
+            if not request.done():
+                request.cancel()
+                with contextlib.suppress(asyncio.CancelledError, httpx.HTTPError):
+                    await request
         if response.is_success:
             return response
         raise _http_error(response, path, self.name)
+
+    async def _wait_while_alive(
+        self, request: asyncio.Future[httpx.Response], method: str, path: str
+    ) -> None:
+        """Wait for ``request``; fail it as unreachable if Moonraker stops answering."""
+        while not request.done():
+            done, _ = await asyncio.wait({request}, timeout=PROBE_AFTER)
+            if done:
+                continue
+            # A ping over the live session; without one, a fresh small HTTP request.
+            alive = await self.session.alive(PROBE_TIMEOUT) if self.session.running else None
+            if alive is None:
+                alive = await self._http_alive()
+            if alive is False and not request.done():
+                raise PrinterUnreachable(
+                    f"Moonraker at {self.base_url} stopped answering (nothing within "
+                    f"{PROBE_TIMEOUT:g} s) while KyberCore waited for {method} {path}. "
+                    "The printer may have run the command or not: check it before retrying.",
+                    printer=self.name,
+                )
+
+    async def _http_alive(self) -> bool | None:
+        """Whether ``/server/info`` answers within PROBE_TIMEOUT (None: it cannot tell)."""
+        try:
+            await self._http.get(
+                self.base_url + "/server/info", headers=self._headers, timeout=PROBE_TIMEOUT
+            )
+        except httpx.TimeoutException:
+            return False
+        except httpx.HTTPError:
+            return None
+        return True
 
 
 def _ignore(_event: SessionEvent) -> None:

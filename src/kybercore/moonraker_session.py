@@ -52,6 +52,7 @@ KLIPPY_POLL_SECONDS: Final = 2.0
 AUTH_RETRY_SECONDS: Final = 60.0
 _SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
 
+
 class _NoDebugLogger(logging.LoggerAdapter):  # type: ignore[type-arg]
     """websockets logs handshake headers, the API key among them, at DEBUG: never let it."""
 
@@ -217,6 +218,25 @@ class MoonrakerSession:
         finally:
             self._pending.pop(req_id, None)
             self._methods.pop(req_id, None)
+
+    async def alive(self, timeout: float) -> bool | None:
+        """Whether Moonraker answers a ping within ``timeout`` s right now.
+
+        ``False`` only on evidence that it hangs (a ping on an open socket went unanswered);
+        ``None`` when there is no open socket to ask. Moonraker answers pings even while a
+        long G-code runs, so this tells a slow command from a frozen host.
+        """
+        ws = self._ws
+        if ws is None:
+            return None
+        try:
+            pong = await ws.ping()
+            await asyncio.wait_for(pong, timeout)
+        except TimeoutError:
+            return False
+        except websockets.ConnectionClosed:
+            return None
+        return True
 
     async def resubscribe(self) -> None:
         """Subscribe again (for example after changing what to watch)."""
