@@ -3,6 +3,7 @@ driven through its REST API and watched through `/ws` as a browser would."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 import sys
@@ -315,3 +316,18 @@ async def test_delete_a_file_but_never_outside_the_gcodes_folder(api: httpx.Asyn
     )
     assert escape.status_code == 422
     assert "not a valid file name" in escape.json()["error"]["message"]
+
+
+async def test_an_oversized_upload_is_refused_before_it_is_read(
+    kybercore_server: KyberCoreServer,
+) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", kybercore_server.port)
+    writer.write(
+        b"POST /api/printers/fleet-c/files HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: multipart/form-data; boundary=x\r\n"
+        b"Content-Length: 900000000\r\n\r\n"
+    )
+    await writer.drain()
+    status_line = await asyncio.wait_for(reader.readline(), 5)
+    writer.close()
+    assert b" 413 " in status_line

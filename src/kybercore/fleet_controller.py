@@ -102,7 +102,7 @@ def create_app(
         default_response_class=ORJSONResponse,
     )
     app.state.access = access or Access("open", None)
-    app.add_middleware(GuardMiddleware)
+    app.add_middleware(GuardMiddleware, max_body=MAX_UPLOAD_BYTES)
     app.add_exception_handler(AccessDenied, access_denied_handler())
     app.add_exception_handler(KyberCoreError, _kybercore_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
@@ -296,11 +296,10 @@ def _routes(app: FastAPI) -> None:
     ) -> dict[str, Any]:
         """Upload a G-code file (checksummed); optionally validate it and start printing."""
         filename = _safe_path(file.filename or "")
-        content = await file.read(MAX_UPLOAD_BYTES + 1)
-        if len(content) > MAX_UPLOAD_BYTES:
-            raise InvalidInput(f"The file is larger than {MAX_UPLOAD_BYTES // 2**20} MiB.")
+        # The request size was checked before parsing (GuardMiddleware); the file itself
+        # stays spooled on disk and is streamed on to Moonraker.
         outcome = await _service(request).upload(
-            printer_id, filename, content, start=start, confirm=confirm
+            printer_id, filename, file.file, start=start, confirm=confirm
         )
         return _outcome(outcome)
 

@@ -15,7 +15,7 @@ import logging
 import time
 from collections.abc import Awaitable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, BinaryIO
 
 import httpx
 import websockets
@@ -349,7 +349,7 @@ class FleetService:
         self,
         printer_id: str,
         filename: str,
-        content: bytes,
+        content: bytes | BinaryIO,
         *,
         start: bool = False,
         confirm: bool = False,

@@ -163,31 +163,20 @@ def add_session_routes(app: FastAPI) -> None:
 
 
 class GuardMiddleware:
-    """Security headers on every answer; cross-origin writes refused before any handler."""
+    """Security headers on every answer; cross-origin writes and oversized bodies refused
+    before any handler parses them."""
 
-    def __init__(self, app: ASGIApp) -> None:
+    def __init__(self, app: ASGIApp, max_body: int) -> None:
         self.app = app
+        self.max_body = max_body
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         headers = {k.decode().lower(): v.decode() for k, v in scope["headers"]}
-        if scope["method"] not in SAFE_METHODS and not same_origin(
-            headers.get("origin"), headers.get("host")
-        ):
-            refusal = JSONResponse(
-                {
-                    "error": {
-                        "code": "cross_origin",
-                        "message": "Requests that change printers must come from KyberCore's "
-                        "own page.",
-                        "reasons": [],
-                    }
-                },
-                status_code=403,
-                headers=SECURITY_HEADERS,
-            )
+        refusal = self._refusal(scope["method"], headers)
+        if refusal is not None:
             await refusal(scope, receive, send)
             return
 
@@ -198,6 +187,30 @@ class GuardMiddleware:
             await send(message)
 
         await self.app(scope, receive, with_headers)
+
+    def _refusal(self, method: str, headers: dict[str, str]) -> Response | None:
+        if method not in SAFE_METHODS and not same_origin(
+            headers.get("origin"), headers.get("host")
+        ):
+            return _refuse(
+                403,
+                "cross_origin",
+                "Requests that change printers must come from KyberCore's own page.",
+            )
+        length = headers.get("content-length", "0")
+        if not length.isdigit() or int(length) > self.max_body:
+            return _refuse(
+                413,
+                "too_large",
+                f"The request is larger than {self.max_body // 2**20} MiB: split the file or "
+                "upload it to the printer directly.",
+            )
+        return None
+
+
+def _refuse(status: int, code: str, message: str) -> Response:
+    body = {"error": {"code": code, "message": message, "reasons": []}}
+    return JSONResponse(body, status_code=status, headers=SECURITY_HEADERS)
 
 
 def access_denied_handler() -> Callable[[Request, Exception], Awaitable[Response]]:

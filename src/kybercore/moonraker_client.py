@@ -14,7 +14,7 @@ import logging
 import os
 import socket
 from collections.abc import Mapping
-from typing import Any, Final
+from typing import Any, BinaryIO, Final
 from urllib.parse import quote, urlsplit, urlunsplit
 
 import httpx
@@ -214,12 +214,15 @@ class MoonrakerClient:
         return response.content
 
     async def upload(
-        self, filename: str, content: bytes, *, start: bool = False, root: str = "gcodes"
+        self, filename: str, content: bytes | BinaryIO, *, start: bool = False, root: str = "gcodes"
     ) -> dict[str, Any]:
-        """Upload a file (with a sha256 checksum Moonraker verifies); optionally print it."""
+        """Upload a file (with a sha256 checksum Moonraker verifies); optionally print it.
+
+        ``content`` may be an open binary file: it is streamed, never loaded whole.
+        """
         data = {
             "root": root,
-            "checksum": hashlib.sha256(content).hexdigest(),
+            "checksum": _sha256(content),
             "print": "true" if start else "false",
         }
         files = {"file": (filename, content, "application/octet-stream")}
@@ -321,6 +324,16 @@ class MoonrakerClient:
         except httpx.HTTPError:
             return None
         return True
+
+
+def _sha256(content: bytes | BinaryIO) -> str:
+    if isinstance(content, bytes):
+        return hashlib.sha256(content).hexdigest()
+    digest = hashlib.sha256()
+    while chunk := content.read(1024 * 1024):
+        digest.update(chunk)
+    content.seek(0)
+    return digest.hexdigest()
 
 
 def _ignore(_event: SessionEvent) -> None:
