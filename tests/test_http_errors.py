@@ -28,6 +28,7 @@ from kybercore.http_errors import error_status
         (InvalidInput("bad"), 422, "invalid_input"),
         (PrinterAuthFailed("key"), 502, "printer_auth_failed"),
         (MoonrakerRpcError(400, "refused"), 502, "moonraker_error"),
+        (MoonrakerRpcError(404, "no such file"), 404, "not_found"),
         (PrinterTimeout("slow"), 504, "printer_timeout"),
         (PrinterUnreachable("down"), 503, "printer_unreachable"),
         (ConfigError("broken"), 500, "config_error"),

@@ -73,8 +73,9 @@ class UnknownPrinter(KyberCoreError):
     """No printer with that id exists."""
 
     def __init__(self, printer_id: str) -> None:
+        shown = printer_id if len(printer_id) <= 100 else printer_id[:100] + "…"
         super().__init__(
-            f"No printer with id '{printer_id}'. List the fleet with GET /api/printers "
+            f"No printer with id '{shown}'. List the fleet with GET /api/printers "
             "or `kybercore printers list`."
         )
         self.printer_id = printer_id

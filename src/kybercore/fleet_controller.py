@@ -457,6 +457,9 @@ async def _validation_error(_request: Request, exc: RequestValidationError) -> R
 
 
 async def _http_error(_request: Request, exc: StarletteHTTPException) -> Response:
+    if exc.status_code == 400:
+        # A body that does not parse (bad JSON, bad multipart) is invalid input like any other.
+        return _error(422, "invalid_input", f"Invalid request: {exc.detail}.")
     return _error(exc.status_code, "http_error", str(exc.detail))
 
 

@@ -31,6 +31,8 @@ _STATUSES: tuple[tuple[type[KyberCoreError], int, str], ...] = (
 
 def error_status(exc: KyberCoreError) -> tuple[int, str]:
     """HTTP status and a stable error code for ``exc``."""
+    if isinstance(exc, MoonrakerRpcError) and exc.code == 404:
+        return 404, "not_found"  # a file or object the printer does not have
     for kind, status, code in _STATUSES:
         if isinstance(exc, kind):
             if isinstance(exc, ActionRejected):

@@ -70,6 +70,9 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
         "powered on and on the network; KyberCore reconnects by itself.",
         "La impresora está desconectada: KyberCore no puede comunicarse con su Moonraker. "
         "Compruebe que esté encendida y conectada a la red; KyberCore se reconectará solo."),
+    "printer_disabled": ("block", "state",
+        "The printer is disabled in KyberCore. Enable it in its settings first.",
+        "La impresora está desactivada en KyberCore. Actívela primero en su configuración."),
     "printer_connecting": ("block", "connection",
         "KyberCore is still connecting to this printer. Wait a few seconds and try again.",
         "KyberCore todavía se está conectando a esta impresora. Espere unos segundos y "
@@ -356,6 +359,8 @@ def filament_types(value: Any) -> tuple[str, ...]:
 def _connection_reasons(printer: PrinterFacts) -> list[Reason]:
     if printer.connection == "online":
         return []
+    if printer.connection == "disabled":
+        return [_reason("printer_disabled")]
     if printer.connection in ("connecting", "auth_failed"):
         return [_reason(f"printer_{printer.connection}")]
     return [_reason("printer_offline")]

@@ -209,15 +209,6 @@ def test_generated_requests_get_documented_answers_and_no_server_error(
     assert httpx.get(f"{fuzz_server}/api/health", timeout=5).status_code == 200
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="A body that is not JSON (or not multipart) gets FastAPI's 400 'There was an error "
-    "parsing the body' (or 'Invalid multipart data.'), which /openapi.json does not document "
-    "(ST103 on all 9 operations that take a body) and which differs from every other input "
-    "error (422 invalid_input). "
-    "Fix in fleet_controller: answer 422 invalid_input from the RequestValidationError/"
-    "HTTPException handlers for body parse errors, or add 400 to _ERRORS.",
-)
 def test_a_body_that_does_not_parse_gets_a_documented_answer(
     api_schema: Any, fuzz_server: str
 ) -> None:
@@ -233,14 +224,6 @@ def test_a_body_that_does_not_parse_gets_a_documented_answer(
     assert str(answer.status_code) in documented, (answer.status_code, sorted(documented))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="An action on a disabled printer answers 503 printer_unreachable 'The printer is "
-    "offline ... check that it is powered on': wrong status and advice for a printer the "
-    "operator switched off. validation._connection_reasons treats connection 'disabled' as "
-    "offline; it should give a 'printer_disabled' reason that fleet_actions.raise_if_blocked "
-    "turns into ActionRejected(code='disabled') -> 409 'Enable it in its settings first'.",
-)
 def test_an_action_on_a_disabled_printer_is_a_409_not_a_503(fuzz_server: str) -> None:
     answer = httpx.post(f"{fuzz_server}/api/printers/fuzz-off/actions/home", timeout=5)
     assert answer.status_code == 409, answer.text
