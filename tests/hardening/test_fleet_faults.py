@@ -11,20 +11,19 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
 
-from kybercore import moonraker_session
 from kybercore.errors import PrinterUnreachable
 from kybercore.fleet_service import FleetService
 from kybercore.printer_config import PrinterConfig
 from kybercore.registry import PrinterRegistry, write_printers
 from kybercore.sim.stack import PrinterStack, free_port
+from tests.hardening.conftest import StartStandin
 from tests.hardening.faults import rss_bytes, standin_process
-from tests.hardening.faulty_moonraker import FaultyMoonraker
 from tests.helpers import KyberCoreServer, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
@@ -33,30 +32,6 @@ FAULTS = ("malformed", "unknown", "bad_shapes", "bad_info", "huge", "silent", "s
 WATCH_SECONDS = 8.0
 # The real printer heats, so Moonraker sends it deltas about 4 times a second.
 HEALTHY_GAP = 2.0
-
-StartStandin = Callable[[str], Awaitable[FaultyMoonraker]]
-
-
-@pytest.fixture
-def fast_timeouts(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(moonraker_session, "PING_INTERVAL", 0.5)
-    monkeypatch.setattr(moonraker_session, "PING_TIMEOUT", 0.5)
-    monkeypatch.setattr(moonraker_session, "OPEN_TIMEOUT", 0.5)
-
-
-@pytest.fixture
-async def standins() -> AsyncIterator[StartStandin]:
-    started: list[FaultyMoonraker] = []
-
-    async def start(scenario: str) -> FaultyMoonraker:
-        standin = FaultyMoonraker(scenario)
-        await standin.start()
-        started.append(standin)
-        return standin
-
-    yield start
-    for standin in started:
-        await standin.stop()
 
 
 def printer(printer_id: str, url: str) -> PrinterConfig:

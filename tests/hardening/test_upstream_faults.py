@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import time
 import tracemalloc
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Callable
 
 import pytest
 
@@ -21,6 +21,12 @@ from kybercore import moonraker_session
 from kybercore.errors import MoonrakerRpcError, PrinterUnreachable
 from kybercore.moonraker_client import FLEET_OBJECTS, websocket_url
 from kybercore.moonraker_session import Backoff, MoonrakerSession, StatusDelta
+from tests.hardening.conftest import (
+    FAST_OPEN_TIMEOUT,
+    FAST_PING_INTERVAL,
+    FAST_PING_TIMEOUT,
+    StartStandin,
+)
 from tests.hardening.faults import Recorder, rss_bytes, standin_process
 from tests.hardening.faulty_moonraker import (
     BAD_SHAPES,
@@ -32,40 +38,13 @@ from tests.helpers import wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
-FAST_PING_INTERVAL = 0.5
-FAST_PING_TIMEOUT = 0.5
-FAST_OPEN_TIMEOUT = 0.5
 # Gaps in a healthy printer's 20 Hz stream beyond this mean the event loop was blocked.
 HEALTHY_GAP = 0.5
 # Production constants: a ping every 5 s, 5 s for its pong, 1 s for the close = 11 s.
 PRODUCTION_SILENCE_LIMIT = 12.0  # 11 s plus scheduling slack
 PRODUCTION_STALL_LIMIT = 5.5
 
-StartStandin = Callable[..., Awaitable[FaultyMoonraker]]
 OpenSession = Callable[..., tuple[MoonrakerSession, Recorder]]
-
-
-@pytest.fixture
-def fast_timeouts(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Keepalive and open timeouts of 0.5 s (CLOSE_TIMEOUT keeps its production value)."""
-    monkeypatch.setattr(moonraker_session, "PING_INTERVAL", FAST_PING_INTERVAL)
-    monkeypatch.setattr(moonraker_session, "PING_TIMEOUT", FAST_PING_TIMEOUT)
-    monkeypatch.setattr(moonraker_session, "OPEN_TIMEOUT", FAST_OPEN_TIMEOUT)
-
-
-@pytest.fixture
-async def standins() -> AsyncIterator[StartStandin]:
-    started: list[FaultyMoonraker] = []
-
-    async def start(scenario: str, **options: float) -> FaultyMoonraker:
-        standin = FaultyMoonraker(scenario, **options)  # type: ignore[arg-type]
-        await standin.start()
-        started.append(standin)
-        return standin
-
-    yield start
-    for standin in started:
-        await standin.stop()
 
 
 @pytest.fixture
