@@ -331,3 +331,25 @@ async def test_an_oversized_upload_is_refused_before_it_is_read(
     status_line = await asyncio.wait_for(reader.readline(), 5)
     writer.close()
     assert b" 413 " in status_line
+
+
+async def test_a_broken_edit_on_disk_keeps_the_last_good_fleet(
+    api: httpx.AsyncClient, mirror: BrowserMirror, kybercore_server: KyberCoreServer
+) -> None:
+    path = kybercore_server.printers_file
+    good = path.read_text()
+    try:
+        path.write_text(good[: len(good) // 2])  # a half-written file
+        await mirror.wait(lambda: bool(mirror.events("config")), what="the refused edit")
+        refused = mirror.events("config")[-1]
+        assert refused["ok"] is False
+        assert "line" in refused["message"]
+        health = (await api.get("/api/health")).json()
+        assert health["config_error"]
+        assert health["printers"] >= 3
+        assert [v["id"] for v in (await api.get("/api/printers")).json()][:3] == list(FLEET)
+        assert path.read_text() == good[: len(good) // 2]  # never overwritten
+    finally:
+        path.write_text(good)
+    await mirror.wait(lambda: mirror.events("config")[-1]["ok"] is True, what="the reload")
+    assert (await api.get("/api/health")).json()["config_error"] is None
