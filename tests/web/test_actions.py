@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import httpx
 import pytest
-from playwright.sync_api import Page, expect
+from playwright.sync_api import Page, Request, expect
 
 from tests.helpers import KyberCoreServer
 from tests.web.conftest import ConsoleErrors
-from tests.web.support import open_fleet, start_print, tile
+from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 
@@ -119,3 +120,68 @@ def test_an_invalid_action_shows_the_backends_error(
     command.press("Enter")
     expect(log.locator(".line.response", has_text="FIRMWARE_NAME")).to_be_visible()
     expect(log.locator(".line.ok")).to_have_text(re.compile("hecho: M115"))
+
+
+def test_a_console_command_needing_confirmation_shows_why_and_is_resent_only_if_confirmed(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    console_errors: ConsoleErrors,
+) -> None:
+    # X 1000 is beyond fleet-a's 220 mm: the backend answers 409 confirmation_required with
+    # the reason, before anything reaches the printer.
+    script = "G1 X1000"
+    answer = api.post("/api/printers/fleet-a/gcode", json={"script": script})
+    assert answer.status_code == 409, answer.text
+    error = answer.json()["error"]
+    assert error["code"] == "confirmation_required"
+    assert [r["code"] for r in error["reasons"]] == ["gcode_move_outside_volume"]
+    reason = error["reasons"][0]
+
+    sent: list[Request] = []
+    page.on("request", lambda r: sent.append(r) if r.url.endswith("/fleet-a/gcode") else None)
+    console_errors.expect(r"status of 409 .*/api/printers/fleet-a/gcode\]$")
+    open_fleet(page, kybercore_server.url)
+    tile(page, "fleet-a").locator("[data-action=console]").click()
+    drawer = page.get_by_role("dialog", name="Printer A")
+    command = drawer.get_by_role("textbox", name="G-code command")
+    log = drawer.get_by_role("log")
+
+    # Backed out of: nothing is sent again, the log says so.
+    command.fill(script)
+    command.press("Enter")
+    warnings = page.get_by_role("dialog", name="Warnings for Printer A")
+    expect(warnings.locator(".reason")).to_have_text([reason["en"]])
+    expect(warnings.get_by_role("button", name="Back")).to_be_focused()
+    page.screenshot(path=str(ARTIFACTS / "console-confirm-warnings.png"))
+    warnings.get_by_role("button", name="Back").click()
+    expect(warnings).to_be_hidden()
+    expect(log.locator(".line.error")).to_have_text(
+        [re.compile("Not sent: the warnings were not confirmed.")]
+    )
+    expect(command).to_be_focused()
+    assert [json.loads(r.post_data or "{}") for r in sent] == [{"script": script, "confirm": False}]
+
+    # Confirmed: sent once more, with confirm. Klipper itself refuses the move (unhomed or
+    # out of range) and the console shows its answer; the printer stays idle.
+    console_errors.expect(r"status of \d+ .*/api/printers/fleet-a/gcode\]$")
+    command.fill(script)
+    command.press("Enter")
+    warnings.get_by_role("button", name="Go ahead").click()
+    klipper = re.compile(r"refused the request \(400\): (Must home axis first|Move out of range)")
+    expect(log.locator(".line.error", has_text=klipper)).to_have_count(1)
+    assert [json.loads(r.post_data or "{}") for r in sent][1:] == [
+        {"script": script, "confirm": False},
+        {"script": script, "confirm": True},
+    ]
+    assert job_state(api, "fleet-a") not in ("printing", "paused")
+
+    # In Spanish, the dialog shows the backend's Spanish reason.
+    page.select_option("#lang", "es")
+    command = drawer.get_by_role("textbox", name="Comando G-code")
+    command.fill(script)
+    command.press("Enter")
+    avisos = page.get_by_role("dialog", name="Avisos para Printer A")
+    expect(avisos.locator(".reason")).to_have_text([reason["es"]])
+    avisos.get_by_role("button", name="Volver").click()
+    assert len(sent) == 4

@@ -1,29 +1,60 @@
-"""Files: list, drag-and-drop upload with progress, and one file to several printers."""
+"""Files: list, drag-and-drop upload with progress, one file to several printers, delete."""
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Iterator
+from pathlib import Path
 
 import httpx
 import pytest
-from playwright.sync_api import FilePayload, Page, expect
+from playwright.sync_api import FilePayload, Page, Request, Route, expect
 
-from kybercore.sim.stack import PrinterStack
 from tests.helpers import KyberCoreServer
-from tests.web.support import open_fleet, slow_print, tile
+from tests.web.conftest import ConsoleErrors
+from tests.web.support import (
+    ARTIFACTS,
+    FLEET,
+    make_idle,
+    open_fleet,
+    slow_print,
+    start_print,
+    tile,
+)
 
 pytestmark = pytest.mark.browser
 
 DROPPED = "web_dropped.gcode"
 SHARED = "web_shared.gcode"
+DOOMED = "web_delete_me.gcode"
+PRINTING = "web_delete_printing.gcode"
+FOREIGN = "web_foreign_model.gcode"
+UPLOADS = (DROPPED, SHARED, DOOMED, PRINTING, FOREIGN)
+
+
+def file_names(api: httpx.Client, printer_id: str) -> list[str]:
+    answer = api.get(f"/api/printers/{printer_id}/files")
+    assert answer.status_code == 200, answer.text
+    return [f["path"] for f in answer.json()]
+
+
+def upload(api: httpx.Client, printer_id: str, name: str, content: bytes) -> None:
+    files = {"file": (name, content, "application/octet-stream")}
+    answer = api.post(f"/api/printers/{printer_id}/files", files=files)
+    assert answer.status_code == 201, answer.text
 
 
 @pytest.fixture
-def remove_uploads(fleet_stacks: list[PrinterStack]) -> Iterator[None]:
+def remove_uploads(kybercore_server: KyberCoreServer, api: httpx.Client) -> Iterator[None]:
+    """The test's files are deleted through the API (idle first: a printed file is in use)."""
     yield
-    for stack in fleet_stacks:
-        for name in (DROPPED, SHARED):
-            (stack.gcodes_dir / name).unlink(missing_ok=True)
+    make_idle(kybercore_server, api)
+    for printer_id in FLEET:
+        present = set(file_names(api, printer_id))
+        for name in present.intersection(UPLOADS):
+            answer = api.delete(f"/api/printers/{printer_id}/files", params={"path": name})
+            assert answer.status_code == 204, answer.text
 
 
 @pytest.mark.usefixtures("remove_uploads")
@@ -69,9 +100,8 @@ def test_upload_one_file_to_several_printers_and_print_it(
     payload: FilePayload = {"name": SHARED, "mimeType": "text/plain", "buffer": slow_print(80)}
     dialog.locator("input[type=file]").set_input_files(payload)
     dialog.get_by_label("Start printing after the upload").check()
-    # Staggered: one printer after the other. (Also needed here: the virtual printers'
-    # Moonrakers share /tmp and collide on their upload temp file names when in parallel.)
-    dialog.get_by_label("Seconds between starts").fill("1")
+    # No stagger: both uploads and starts go out in parallel.
+    expect(dialog.get_by_label("Seconds between starts")).to_have_value("0")
     dialog.get_by_role("button", name="Upload", exact=True).click()
     for printer_id in ("fleet-a", "fleet-b"):
         row = dialog.locator(f"[data-printer={printer_id}]")
@@ -92,3 +122,139 @@ def test_upload_one_file_to_several_printers_and_print_it(
         expect(results.locator(f"[data-printer={printer_id}]")).to_contain_text("Print cancelled.")
         expect(tile(page, printer_id).locator(".pill")).to_have_text("Cancelled")
         assert api.get(f"/api/printers/{printer_id}").json()["job"]["state"] == "cancelled"
+
+
+@pytest.mark.usefixtures("remove_uploads")
+def test_a_file_deleted_from_the_ui_is_gone_from_the_printer(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    console_errors: ConsoleErrors,
+) -> None:
+    upload(api, "fleet-b", DOOMED, slow_print(20))
+    start_print(api, "fleet-b", PRINTING)
+    open_fleet(page, kybercore_server.url)
+    tile(page, "fleet-b").locator("[data-action=files]").click()
+    drawer = page.get_by_role("dialog", name="Printer B")
+    row = drawer.locator(f'tr[data-file="{DOOMED}"]')
+    delete = row.get_by_role("button", name=f"Delete {DOOMED}")
+    expect(delete).to_be_enabled()
+    drawer.screenshot(path=str(ARTIFACTS / "files-delete-buttons.png"))
+
+    # It asks first; Back (which has the focus) leaves the file alone.
+    delete.click()
+    confirm = page.get_by_role("dialog", name=f"Delete {DOOMED}?")
+    expect(confirm).to_contain_text("The file is deleted from Printer B.")
+    expect(confirm.get_by_role("button", name="Back")).to_be_focused()
+    page.screenshot(path=str(ARTIFACTS / "files-delete-confirm.png"))
+    confirm.get_by_role("button", name="Back").click()
+    expect(confirm).to_be_hidden()
+    assert DOOMED in file_names(api, "fleet-b")
+
+    delete.click()
+    confirm.get_by_role("button", name="Delete").click()
+    expect(page.locator(".toast.ok", has_text=f"Deleted {DOOMED}.")).to_be_visible()
+    expect(row).to_have_count(0)
+    assert DOOMED not in file_names(api, "fleet-b")
+    expect(drawer.get_by_role("searchbox", name="Filter files")).to_be_focused()
+
+    # The file being printed is refused (409 file_in_use) with the backend's words.
+    refusal = api.delete("/api/printers/fleet-b/files", params={"path": PRINTING})
+    assert refusal.status_code == 409, refusal.text
+    assert refusal.json()["error"]["code"] == "file_in_use"
+    console_errors.expect(r"status of 409 .*/api/printers/fleet-b/files\?path=")
+    drawer.get_by_role("button", name=f"Delete {PRINTING}").click()
+    in_use = page.get_by_role("dialog", name=f"Delete {PRINTING}?")
+    in_use.get_by_role("button", name="Delete").click()
+    toast = page.locator(".toast.error")
+    expect(toast).to_contain_text(refusal.json()["error"]["message"])
+    expect(toast).to_contain_text("Printer B · Delete")
+    expect(drawer.locator(f'tr[data-file="{PRINTING}"]')).to_have_count(1)
+    assert PRINTING in file_names(api, "fleet-b")
+    assert api.get("/api/printers/fleet-b").json()["job"]["state"] == "printing"
+
+
+@pytest.mark.usefixtures("remove_uploads")
+def test_upload_and_print_asks_about_the_backends_warnings_then_confirms(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    console_errors: ConsoleErrors,
+) -> None:
+    # Sliced for another machine: starting it needs confirmation (printer_model_mismatch).
+    content = slow_print(60) + b"; printer_model = Bambu X1C\n"
+    sent: list[Request] = []
+    page.on("request", lambda r: sent.append(r) if "/api/printers/fleet-b/" in r.url else None)
+    console_errors.expect(r"status of 409 .*/api/printers/fleet-b/files\]$")
+    open_fleet(page, kybercore_server.url)
+    tile(page, "fleet-b").locator("[data-action=files]").click()
+    drawer = page.get_by_role("dialog", name="Printer B")
+    drawer.get_by_label("Start printing after the upload").check()
+    payload: FilePayload = {"name": FOREIGN, "mimeType": "text/plain", "buffer": content}
+    drawer.locator("input[type=file]").set_input_files(payload)
+
+    warnings = page.get_by_role("dialog", name="Warnings for Printer B")
+    expect(warnings).to_be_visible()
+    # The upload happened; the dialog shows the reasons the 409 carried, nothing else.
+    verdict = api.post("/api/printers/fleet-b/actions/start/check", json={"filename": FOREIGN})
+    reasons = [r for r in verdict.json()["reasons"] if r["level"] == "warn"]
+    assert [r["code"] for r in reasons] == ["printer_model_mismatch"]
+    expect(warnings.locator(".reason")).to_have_text([reasons[0]["en"]])
+    assert not [r for r in sent if "/check" in r.url]
+    # Already uploaded while it asks: full bar, listed.
+    expect(drawer.get_by_role("progressbar")).to_have_attribute("aria-valuenow", "100")
+    expect(drawer.locator(f'tr[data-file="{FOREIGN}"]')).to_have_count(1)
+    page.screenshot(path=str(ARTIFACTS / "upload-confirm-warnings.png"))
+    warnings.get_by_role("button", name="Go ahead").click()
+
+    expect(drawer.locator(".upload-status")).to_have_text(
+        f"Uploaded {FOREIGN} and started printing it."
+    )
+    expect(tile(page, "fleet-b").locator(".pill")).to_have_text("Printing")
+    posts = [r for r in sent if r.method == "POST"]
+    assert [r.url.split("/fleet-b/")[1] for r in posts] == ["files", "actions/start"]
+    assert json.loads(posts[1].post_data or "{}") == {"filename": FOREIGN, "confirm": True}
+
+
+@pytest.mark.usefixtures("remove_uploads")
+def test_requests_refused_before_they_are_read_show_the_backends_message(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    console_errors: ConsoleErrors,
+    tmp_path: Path,
+) -> None:
+    open_fleet(page, kybercore_server.url)
+    tile(page, "fleet-a").locator("[data-action=files]").click()
+    drawer = page.get_by_role("dialog", name="Printer A")
+
+    # 413 too_large: a file over 512 MiB (sparse: no disk used) is refused unread.
+    huge = tmp_path / "web_huge.gcode"
+    with huge.open("wb") as handle:
+        handle.truncate(513 * 2**20)
+    console_errors.expect(r"status of 413 .*/api/printers/fleet-a/files")
+    drawer.locator("input[type=file]").set_input_files(huge)
+    too_large = "The request is larger than 512 MiB: split the file or upload it to the printer"
+    expect(drawer.locator(".upload-status")).to_contain_text(too_large, timeout=30_000)
+    expect(page.locator(".toast.error", has_text=too_large)).to_be_visible()
+    assert "web_huge.gcode" not in file_names(api, "fleet-a")
+
+    # 403 cross_origin: what a proxy that rewrites the Host header gets (the Origin forged
+    # here); the real backend answers, the page shows its message.
+    upload(api, "fleet-a", DOOMED, slow_print(20))
+    drawer.get_by_role("button", name="Refresh").click()
+
+    def forged(route: Route) -> None:
+        headers = {**route.request.headers, "origin": "http://elsewhere.example"}
+        route.fulfill(response=route.fetch(headers=headers))
+
+    page.route(re.compile(r"/api/printers/fleet-a/files\?path="), forged)
+    console_errors.expect(r"status of 403 .*/api/printers/fleet-a/files\?path=")
+    drawer.get_by_role("button", name=f"Delete {DOOMED}").click()
+    confirm = page.get_by_role("dialog", name=f"Delete {DOOMED}?")
+    confirm.get_by_role("button", name="Delete").click()
+    refused = page.locator(".toast.error", has_text="Printer A · Delete")
+    expect(refused).to_contain_text(
+        "Requests that change printers must come from KyberCore's own page."
+    )
+    assert DOOMED in file_names(api, "fleet-a")

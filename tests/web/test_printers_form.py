@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import httpx
 import pytest
@@ -11,7 +11,7 @@ from playwright.sync_api import Page, expect
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import KyberCoreServer
 from tests.web.conftest import ConsoleErrors
-from tests.web.support import open_fleet, tile
+from tests.web.support import ARTIFACTS, open_fleet, tile
 
 pytestmark = pytest.mark.browser
 
@@ -93,3 +93,74 @@ def test_a_printer_added_through_the_form_appears(
     expect(card).to_have_count(0)
     assert api.get(f"/api/printers/{NEW_ID}").status_code == 404
     expect(page.locator(".tile")).to_have_count(3)
+
+
+def test_the_backends_field_problems_appear_under_their_fields_in_spanish(
+    new_page: Callable[..., Page],
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    fleet_stacks: list[PrinterStack],
+    request: pytest.FixtureRequest,
+) -> None:
+    # What the form sends for these inputs, and the backend's per-field answer to it.
+    body = {
+        "name": "",
+        "moonraker_url": "ftp://printer.local",
+        "model": "",
+        "location": "",
+        "tags": [],
+        "notes": "",
+        "enabled": True,
+        "capabilities": {"nozzle_diameter": -1},
+    }
+    answer = api.post("/api/printers", json=body)
+    assert answer.status_code == 422, answer.text
+    fields = {f["field"]: f["es"] for f in answer.json()["error"]["fields"]}
+    assert set(fields) == {"name", "moonraker_url", "capabilities.nozzle_diameter"}
+
+    page = new_page(locale="es-ES")
+    console_errors: ConsoleErrors = request.node.console_errors  # this page's
+    open_fleet(page, kybercore_server.url)
+    page.get_by_role("button", name="Añadir impresora").click()
+    form = page.get_by_role("dialog", name="Añadir una impresora")
+    console_errors.expect(r"status of 422 .*/api/printers\]$")
+    form.get_by_label("URL de Moonraker").fill("ftp://printer.local")
+    capabilities = form.locator("details.caps")
+    capabilities.locator("summary").click()
+    form.get_by_label("Boquilla (mm)").fill("-1")
+    capabilities.locator("summary").click()  # closed again: the error must open it
+    form.get_by_role("button", name="Añadir impresora").click()
+
+    url_error = form.locator("#pf-moonraker_url-error")
+    expect(url_error).to_have_text(fields["moonraker_url"].replace("Value error, ", ""))
+    expect(url_error).to_contain_text("El valor no es válido")
+    expect(form.locator("#pf-name-error")).to_have_text(fields["name"])
+    nozzle_error = form.locator('[id="pf-capabilities.nozzle_diameter-error"]')
+    expect(nozzle_error).to_have_text(fields["capabilities.nozzle_diameter"])
+    expect(nozzle_error).to_be_visible()
+    expect(capabilities).to_have_attribute("open", "")
+    url = form.get_by_label("URL de Moonraker")
+    expect(url).to_have_attribute("aria-invalid", "true")
+    expect(url).to_have_attribute("aria-describedby", "pf-moonraker_url-error")
+    expect(form.get_by_label("Nombre")).to_be_focused()
+    expect(form.locator(".form-error")).to_be_hidden()
+    page.screenshot(path=str(ARTIFACTS / "printer-form-field-errors-es.png"))
+
+    # Fixed, but the id is taken: a 422 without fields, so its message is shown on top.
+    taken = api.post("/api/printers", json={**body, "id": "fleet-a", "name": "X",
+                                            "moonraker_url": fleet_stacks[0].url,
+                                            "capabilities": {}})  # fmt: skip
+    assert taken.status_code == 422, taken.text
+    assert not taken.json()["error"].get("fields")
+    form.get_by_label("Nombre").fill("X")
+    form.get_by_label("Identificador", exact=True).fill("fleet-a")
+    url.fill(fleet_stacks[0].url)
+    form.get_by_label("Boquilla (mm)").fill("")
+    form.get_by_role("button", name="Añadir impresora").click()
+    expect(form.locator(".form-error")).to_have_text(taken.json()["error"]["message"])
+    for error in (url_error, nozzle_error, form.locator("#pf-name-error")):
+        expect(error).to_be_hidden()
+    expect(url).not_to_have_attribute("aria-invalid", "true")
+    form.get_by_role("button", name="Volver").click()
+    expect(form).to_be_hidden()
+    assert len(api.get("/api/printers").json()) == 3

@@ -102,8 +102,7 @@ export async function send(id, action, params = {}, confirm = false, report = tr
     return result;
   } catch (error) {
     if (error.code === "confirmation_required" && !confirm) {
-      const reasons = await warningsOf(id, action, params, error);
-      if (await confirmWarnings(id, reasons)) return send(id, action, params, true, report);
+      if (await confirmWarnings(id, warningsOf(error))) return send(id, action, params, true, report);
       return null;
     }
     if (report) failed(id, action, error);
@@ -111,16 +110,13 @@ export async function send(id, action, params = {}, confirm = false, report = tr
   }
 }
 
-/** The warnings behind a confirmation_required answer, with their Spanish text (dry run). */
-export async function warningsOf(id, action, params, error) {
-  if (error.reasons?.length) return error.reasons;
-  try {
-    const verdict = await api.check(id, action, params);
-    const warnings = verdict.reasons.filter((r) => r.level === "warn");
-    if (warnings.length) return warnings;
-  } catch {
-    // fall back to the error's own message
-  }
+/**
+ * The warnings behind a confirmation_required answer: the 409 carries them in
+ * error.reasons ({code, level: "warn", en, es}); without any, its message.
+ */
+export function warningsOf(error) {
+  const warnings = (error.reasons || []).filter((r) => r.level === "warn");
+  if (warnings.length) return warnings;
   return [{ level: "warn", en: error.message, es: error.message }];
 }
 

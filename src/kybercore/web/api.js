@@ -1,5 +1,5 @@
 // The REST API of the KyberCore backend. Every failure becomes an ApiError carrying the
-// backend's {code, message, reasons}; nothing here invents a success.
+// backend's {code, message, reasons, fields}; nothing here invents a success.
 import { t } from "./i18n.js";
 
 export class ApiError extends Error {
@@ -8,6 +8,8 @@ export class ApiError extends Error {
     this.status = status;
     this.code = (error && error.code) || `http_${status}`;
     this.reasons = (error && error.reasons) || [];
+    // 422 invalid_input: [{field: "capabilities.material", en, es}] (dotted paths).
+    this.fields = (error && error.fields) || [];
   }
 }
 
@@ -51,6 +53,7 @@ export const api = {
   check: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}/check`, params),
   gcode: (id, script, options = {}) => request("POST", `${printer(id)}/gcode`, { script, ...options }),
   files: (id) => request("GET", `${printer(id)}/files`),
+  deleteFile: (id, path) => request("DELETE", `${printer(id)}/files?path=${enc(path)}`),
   metadata: (id, filename) => request("GET", `${printer(id)}/files/metadata?filename=${enc(filename)}`),
   thumbnailUrl: (id, path) => `${printer(id)}/files/thumbnail?path=${enc(path)}`,
   actMany: (action, ids, params = {}) =>

@@ -50,8 +50,11 @@ export function showConsole(panel, id) {
     input.value = "";
     line(log, "sent", `> ${script}`);
     try {
+      // A 409 confirmation_required (e.g. a move outside the build volume) asks first and
+      // is sent again with confirm: true only when the user goes ahead (null otherwise).
       const result = await send(id, "gcode", { script }, false, false);
       if (result) line(log, "ok", `${t("console.done")} ${script}`);
+      else line(log, "error", t("console.not_sent"));
     } catch (error) {
       line(log, "error", messageOf(error));
     }

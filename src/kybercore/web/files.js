@@ -1,8 +1,8 @@
 // A printer's files: size, date and estimated time (metadata fetched lazily, only for the
-// rows on screen), print a file, and drag-and-drop upload with a progress bar.
+// rows on screen), print or delete a file, and drag-and-drop upload with a progress bar.
 import { confirmWarnings, startPrint, warningsOf } from "./actions.js";
 import { api } from "./api.js";
-import { toast } from "./dialogs.js";
+import { confirmDialog, toast } from "./dialogs.js";
 import { h, icon, setHidden } from "./dom.js";
 import * as fmt from "./format.js";
 import { messageOf, t } from "./i18n.js";
@@ -44,8 +44,10 @@ export function showFiles(panel, id) {
   state = { id, panel, files: [], shown: 0, observer, queue: [], active: 0, body, more, message, filter, meta: new Map() };
   filter.addEventListener("input", () => render(PAGE));
   panel.addEventListener("click", (event) => {
-    const button = event.target.closest("button[data-print]");
-    if (button) startPrint(id, button.dataset.print);
+    const print = event.target.closest("button[data-print]");
+    if (print) startPrint(id, print.dataset.print);
+    const remove = event.target.closest("button[data-delete]");
+    if (remove) deleteFile(id, remove.dataset.delete);
   });
 
   async function uploadHere(file) {
@@ -65,9 +67,12 @@ export function showFiles(panel, id) {
       status.textContent = outcome.message;
       toast({ kind: "ok", title: printers.get(id)?.name || id, message: outcome.message });
     } else if (outcome.needsConfirm) {
+      // Uploaded already (the 409 is about starting it): show it in the list, then ask.
+      bar.style.width = "100%";
+      progress.setAttribute("aria-valuenow", "100");
       status.textContent = t("upload.needs_confirm");
-      const reasons = await warningsOf(id, "start", { filename: file.name }, outcome.error);
-      if (await confirmWarnings(id, reasons)) {
+      load();
+      if (await confirmWarnings(id, warningsOf(outcome.error))) {
         try {
           await api.act(id, "start", { filename: file.name, confirm: true });
           status.textContent = t("done.upload_start", { filename: file.name });
@@ -86,6 +91,29 @@ export function showFiles(panel, id) {
   return filter;
 }
 
+/** Delete a file after a confirmation; the list is reloaded from the printer afterwards. */
+async function deleteFile(id, path) {
+  const name = printers.get(id)?.name || id;
+  const ok = await confirmDialog({
+    title: t("files.delete_title", { filename: path }),
+    message: t("files.delete_body", { name }),
+    confirmLabel: t("files.delete"),
+    danger: true,
+  });
+  if (!ok) return;
+  try {
+    await api.deleteFile(id, path);
+    toast({ kind: "ok", title: name, message: t("done.delete_file", { filename: path }) });
+  } catch (error) {
+    toast({ kind: "error", title: `${name} · ${t("files.delete")}`, message: messageOf(error) });
+  }
+  if (state?.id !== id) return;
+  const hadFocus = state.panel.contains(document.activeElement);
+  await load();
+  // The button that had the focus is gone with its row: keep the focus in the panel.
+  if (hadFocus && state?.id === id && !state.panel.contains(document.activeElement)) state.filter.focus();
+}
+
 function canStart(id) {
   return can("operator") && Boolean(printers.get(id)?.actions?.start);
 }
@@ -100,6 +128,8 @@ export function refreshFileButtons() {
   if (!state) return;
   const allowed = canStart(state.id);
   for (const button of state.body.querySelectorAll("button[data-print]")) button.disabled = !allowed;
+  const operator = can("operator");
+  for (const button of state.body.querySelectorAll("button[data-delete]")) button.disabled = !operator;
 }
 
 async function load() {
@@ -128,6 +158,7 @@ function render(count) {
   s.observer.disconnect();
   s.queue = [];
   const allowed = canStart(s.id);
+  const operator = can("operator");
   const rows = list.slice(0, s.shown).map((file) => {
     const estimate = h("td", { class: "c-est" });
     const thumb = h("span", { class: "file-thumb" });
@@ -141,7 +172,12 @@ function render(count) {
       h(
         "td",
         { class: "c-print" },
-        h("button", { type: "button", class: "btn small primary", dataset: { print: file.path }, disabled: !allowed, "aria-label": t("files.print_named", { filename: file.path }) }, icon("start"), h("span", { text: t("files.print") })),
+        h(
+          "span",
+          { class: "file-actions" },
+          h("button", { type: "button", class: "btn small primary", dataset: { print: file.path }, disabled: !allowed, "aria-label": t("files.print_named", { filename: file.path }) }, icon("start"), h("span", { text: t("files.print") })),
+          h("button", { type: "button", class: "icon-btn small danger", dataset: { delete: file.path }, disabled: !operator, "aria-label": t("files.delete_named", { filename: file.path }), title: t("files.delete") }, icon("remove")),
+        ),
       ),
     );
     row._fill = (meta) => fillMeta(s.id, meta, estimate, thumb);

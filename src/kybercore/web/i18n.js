@@ -60,14 +60,22 @@ export function reasonText(reason) {
   return (reason && (reason[lang] || reason.en)) || "";
 }
 
+/** A 422 field problem {field, en, es} in the UI's language, without pydantic's prefix. */
+export function fieldText(problem) {
+  return reasonText(problem).replace(/Value error, /, "");
+}
+
 /**
  * The backend's message for an error or a failed result: the reasons in the UI's
- * language when there are any (blocking ones first), else the plain message.
+ * language when there are any (blocking ones first), then the per-field problems of an
+ * invalid request, else the plain message.
  */
 export function messageOf(error) {
   const reasons = (error && error.reasons) || [];
   const blocking = reasons.filter((r) => r.level === "block");
   const shown = blocking.length ? blocking : reasons.filter((r) => r.level === "warn");
   if (shown.length) return shown.map(reasonText).join(" ");
+  const fields = (error && error.fields) || [];
+  if (fields.length) return fields.map((f) => `${f.field}: ${fieldText(f)}`).join(" ");
   return (error && error.message) || t("error.unknown");
 }

@@ -1,9 +1,10 @@
-// Add, edit and remove printers. Validation is the backend's: its 422 answer is split into
-// messages under the fields they name. The API key is write-only: never shown, never echoed.
+// Add, edit and remove printers. Validation is the backend's: the per-field problems of its
+// 422 answer go under the fields they name, in the UI's language. The API key is write-only:
+// never shown, never echoed.
 import { api } from "./api.js";
 import { confirmDialog, modal, toast } from "./dialogs.js";
 import { h } from "./dom.js";
-import { messageOf, t } from "./i18n.js";
+import { fieldText, messageOf, t } from "./i18n.js";
 import { facets, printers } from "./store.js";
 
 const CAPS = ["nozzle_diameter", "material", "max_extruder_temp", "max_bed_temp"];
@@ -104,33 +105,46 @@ function patchBody(p, v) {
   return body;
 }
 
-/** Put the backend's 422 messages under the fields they name; the rest on top. */
+/** The form's box for a field path: "tags.1" is the tags field, "capabilities.x.y" the
+ * nearest named box ("capabilities.build_volume" has none of its own: its axes have). */
+function boxFor(form, path) {
+  const parts = path.split(".").filter((part) => !/^\d+$/.test(part));
+  while (parts.length) {
+    const box = form.querySelector(`[data-field="${CSS.escape(parts.join("."))}"]`);
+    if (box) return box;
+    parts.pop();
+  }
+  return null;
+}
+
+/** Put the backend's per-field problems (422 `fields`) under the fields they name; the
+ * rest, and any other error, on top. */
 function showErrors(form, error) {
-  for (const el of form.querySelectorAll(".field-error")) el.hidden = true;
+  for (const el of form.querySelectorAll(".field-error")) {
+    el.hidden = true;
+    el.textContent = "";
+  }
   for (const el of form.querySelectorAll("[aria-invalid]")) el.removeAttribute("aria-invalid");
   const general = [];
-  const prefix = "Invalid request. ";
-  const problems = error.code === "invalid_input" && error.message.startsWith(prefix) ? error.message.slice(prefix.length).split("; ") : [];
   let first = null;
-  for (const problem of problems) {
-    const split = problem.indexOf(": ");
-    const path = split > 0 ? problem.slice(0, split).replace(/\.\d+$/, "") : "";
-    const message = problem.slice(split + 2).replace(/^Value error, /, "");
-    const box = path && form.querySelector(`[data-field="${CSS.escape(path)}"]`);
+  for (const problem of error.fields || []) {
+    const message = fieldText(problem);
+    const box = boxFor(form, problem.field || "");
     if (!box) {
-      general.push(problem);
+      general.push(`${problem.field}: ${message}`);
       continue;
     }
     const input = box.querySelector("input, textarea");
     const note = box.querySelector(".field-error");
-    note.textContent = message;
+    note.textContent = note.textContent ? `${note.textContent} ${message}` : message;
     note.hidden = false;
     input.setAttribute("aria-invalid", "true");
-    input.setAttribute("aria-describedby", [note.id, input.getAttribute("aria-describedby")].filter(Boolean).join(" "));
-    if (path.startsWith("capabilities")) form.querySelector("details.caps").open = true;
+    const described = (input.getAttribute("aria-describedby") || "").split(" ").filter((x) => x && x !== note.id);
+    input.setAttribute("aria-describedby", [note.id, ...described].join(" "));
+    if (box.closest("details.caps")) form.querySelector("details.caps").open = true;
     first = first || input;
   }
-  if (!problems.length) general.push(messageOf(error));
+  if (!error.fields?.length) general.push(messageOf(error));
   const top = form.querySelector(".form-error");
   top.textContent = general.join(" ");
   top.hidden = general.length === 0;

@@ -135,6 +135,7 @@ async function uploadMany(ids, file, { start, delay, rows }) {
     if (outcome.ok) row.done("ok", outcome.message);
     else if (outcome.needsConfirm) {
       needConfirm.push({ id, error: outcome.error });
+      row.progress(1); // uploaded; only the start waits for a confirmation
       row.done("warn", t("upload.needs_confirm"));
     } else row.done("fail", messageOf(outcome.error));
   };
@@ -150,8 +151,7 @@ async function uploadMany(ids, file, { start, delay, rows }) {
     }));
   }
   for (const { id, error } of needConfirm) {
-    const reasons = await warningsOf(id, "start", { filename: file.name }, error);
-    if (!(await confirmWarnings(id, reasons))) {
+    if (!(await confirmWarnings(id, warningsOf(error)))) {
       rows.get(id).done("warn", t("upload.not_started"));
       continue;
     }
