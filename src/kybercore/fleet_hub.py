@@ -50,6 +50,8 @@ class Hub:
         self._clients: dict[int, HubClient] = {}
         self._ids = itertools.count(1)
         self._seq = 0
+        self._snapshot_frame: bytes | None = None
+        """The encoded snapshot of the current views, until a flush replaces a view."""
         self._task: asyncio.Task[None] | None = None
 
     # -- feeding -----------------------------------------------------------------------
@@ -109,6 +111,8 @@ class Hub:
         changed: dict[str, Any] = {}
         removed: list[str] = []
         dirty, self._dirty = self._dirty, set()
+        if dirty:
+            self._snapshot_frame = None
         for printer_id in dirty:
             new = self._render(printer_id)
             old = self._views.get(printer_id)
@@ -141,9 +145,13 @@ class Hub:
                 log.exception("fleet hub: publishing failed")
 
     def _snapshot(self) -> bytes:
-        return _encode(
-            {"type": "snapshot", "seq": self._seq, "printers": list(self._views.values())}
-        )
+        # Encoded once for every client that connects or overflows before the views change:
+        # at 5,000 printers a snapshot is ~5 MB, and slow clients tend to overflow together.
+        if self._snapshot_frame is None:
+            self._snapshot_frame = _encode(
+                {"type": "snapshot", "seq": self._seq, "printers": list(self._views.values())}
+            )
+        return self._snapshot_frame
 
     def _offer(self, client: HubClient, frame: bytes) -> None:
         try:

@@ -9,6 +9,8 @@ between two such dicts so only that goes over the wire.
 from __future__ import annotations
 
 import contextlib
+import functools
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,9 +42,42 @@ def _num(value: Any, digits: int = 1) -> float | None:
     return round(float(value), digits) if isinstance(value, int | float) else None
 
 
+# fuse() runs for every status update of every printer (4 Hz each); dumping the pydantic
+# config and re-deriving the allowed actions were half its cost. A config object is replaced
+# on every edit, never changed in place, so its dumps are kept for as long as it lives.
+_dumps: dict[int, tuple[View, dict[str, Any]]] = {}
+
+
+def _config_dumps(config: PrinterConfig) -> tuple[View, dict[str, Any]]:
+    """``config.public()`` and ``config.capabilities`` as JSON data, once per config object."""
+    key = id(config)
+    dumps = _dumps.get(key)
+    if dumps is None:
+        dumps = (
+            config.public().model_dump(mode="json"),
+            config.capabilities.model_dump(mode="json"),
+        )
+        _dumps[key] = dumps
+        weakref.finalize(config, _dumps.pop, key, None)
+    return dumps
+
+
+@functools.lru_cache(maxsize=4096)
+def _cached_actions(printer: PrinterFacts) -> dict[str, bool]:
+    return allowed_actions(printer)
+
+
+def _actions(printer: PrinterFacts) -> dict[str, bool]:
+    """:func:`allowed_actions`, remembered per distinct facts (a fleet has few of them)."""
+    try:
+        return dict(_cached_actions(printer))
+    except TypeError:  # unhashable: odd values from a misbehaving peer; compute afresh
+        return allowed_actions(printer)
+
+
 def capabilities(config: PrinterConfig, live: LivePrinter) -> dict[str, Any]:
     """What validation uses: printers.json's values, else what Klippy reports."""
-    configured = config.capabilities.model_dump(mode="json")
+    configured = _config_dumps(config)[1]
     return {
         key: value if value is not None else live.detected.get(key)
         for key, value in configured.items()
@@ -115,7 +150,9 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         max(thumbs, key=lambda t: t.get("width", 0)).get("relative_path") if thumbs else None
     )
     position = toolhead.get("position")
-    view: View = config.public().model_dump(mode="json")
+    # A shallow copy: nested values of the cached dump are shared, and views are never
+    # modified once built (the hub diffs them, the API serializes them).
+    view: View = dict(_config_dumps(config)[0])
     view["capabilities"] = capabilities(config, live)
     view.update(
         connection=live.connection,
@@ -145,7 +182,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
         speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),
-        actions=allowed_actions(facts(config, live)),
+        actions=_actions(facts(config, live)),
         updated_at=round(live.updated_at, 1),
     )
     return view
@@ -159,6 +196,10 @@ def _heater(obj: Mapping[str, Any]) -> dict[str, float | None]:
     }
 
 
+_ABSENT: Any = object()
+"""Stands for a key missing from the old view: equal to nothing."""
+
+
 def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
     """A patch that turns ``old`` into ``new`` when deep-merged (lists replace).
 
@@ -166,12 +207,16 @@ def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
     """
     patch: dict[str, Any] = {}
     for key, value in new.items():
-        previous = old.get(key)
+        previous = old.get(key, _ABSENT)
+        if value == previous:
+            # Most of a view is unchanged: one C-level comparison instead of a recursion
+            # into each nested dict (capabilities, actions, job, heaters).
+            continue
         if isinstance(value, dict) and isinstance(previous, dict):
             inner = diff(previous, value)
             if inner:
                 patch[key] = inner
-        elif value != previous or key not in old:
+        else:
             patch[key] = value
     return patch
 

@@ -1,0 +1,1 @@
+"""Fleet-scale benchmark of KyberCore (see bench/README.md)."""

@@ -1,0 +1,80 @@
+"""A browser that reads every byte KyberCore sends on ``/ws`` and parses only frame headers.
+
+100 dashboards at N = 5,000 receive ~400 MB/s between them. A ``websockets`` client per
+dashboard would spend more CPU in this benchmark's process than KyberCore spends sending,
+so all but the measuring clients are this: a raw :class:`asyncio.Protocol` that does the
+handshake, answers pings (uvicorn closes a client that does not), notes snapshots
+(KyberCore resends one when a client's queue overflowed) and drops the rest unread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import os
+from typing import Final
+
+from bench import wsframes
+
+SNAPSHOT: Final = b'{"type":"snapshot"'
+
+
+class DrainClient(asyncio.Protocol):
+    """One draining browser on ``ws://host:port/ws``."""
+
+    def __init__(self, host: str, port: int, ready: asyncio.Future[None]) -> None:
+        self._request = (
+            f"GET /ws HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
+            "Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: "
+            f"{base64.b64encode(os.urandom(16)).decode()}\r\n\r\n"
+        ).encode()
+        self._ready = ready
+        self._buffer = bytearray()
+        self._open = False
+        self._transport: asyncio.Transport | None = None
+        self.frames = 0
+        self.bytes = 0
+        self.snapshots = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self._transport = transport
+        transport.write(self._request)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self._ready.done():
+            self._ready.set_exception(ConnectionError(f"/ws closed before its snapshot: {exc}"))
+
+    def data_received(self, data: bytes) -> None:
+        self._buffer += data
+        if not self._open:
+            end = self._buffer.find(b"\r\n\r\n")
+            if end < 0:
+                return
+            if not self._buffer.startswith(b"HTTP/1.1 101"):
+                raise ConnectionError(bytes(self._buffer[:end]).decode("latin-1"))
+            del self._buffer[: end + 4]
+            self._open = True
+        while (found := wsframes.bounds(self._buffer)) is not None:
+            opcode, start, end = found
+            if len(self._buffer) < end:
+                return  # the payload is still arriving
+            self._frame(opcode, start, end)
+            del self._buffer[:end]
+
+    def _frame(self, opcode: int, start: int, end: int) -> None:
+        if opcode == wsframes.PING and self._transport is not None:
+            payload = bytes(self._buffer[start:end])
+            self._transport.write(wsframes.encode(payload, wsframes.PONG, os.urandom(4)))
+            return
+        self.frames += 1
+        self.bytes += end - start
+        if self._buffer.startswith(SNAPSHOT, start):
+            self.snapshots += 1
+            if not self._ready.done():
+                self._ready.set_result(None)
+
+    def close(self) -> None:
+        """Drop the connection."""
+        if self._transport is not None:
+            self._transport.close()

@@ -1,0 +1,1 @@
+"""Smoke test of the fleet-scale benchmark harness (bench/)."""
