@@ -114,7 +114,12 @@ class Hub:
         if dirty:
             self._snapshot_frame = None
         for printer_id in dirty:
-            new = self._render(printer_id)
+            try:
+                new = self._render(printer_id)
+            except Exception:
+                # One printer's bad data must not stop the others: keep its last view.
+                log.exception("fleet hub: cannot render printer %s", printer_id)
+                continue
             old = self._views.get(printer_id)
             if new is None:
                 if self._views.pop(printer_id, None) is not None:

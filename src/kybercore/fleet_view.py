@@ -128,28 +128,34 @@ def eta_seconds(
 
 def fuse(config: PrinterConfig, live: LivePrinter) -> View:
     """The printer as the API and the browser see it. Never contains the API key."""
+    # Field types are whatever the peer sent: read numbers and text defensively, so one
+    # misbehaving printer cannot break the view of the whole fleet.
     status = live.status
     stats = status.get("print_stats", {})
     sdcard = status.get("virtual_sdcard", {})
     display = status.get("display_status", {})
     toolhead = status.get("toolhead", {})
-    info = stats.get("info") or {}
+    info: dict[str, Any] = stats["info"] if isinstance(stats.get("info"), dict) else {}
     print_state = str(stats.get("state", "")) if live.klippy_state == "ready" else ""
-    filename = stats.get("filename") or ""
-    progress = float(display.get("progress") or sdcard.get("progress") or 0.0)
+    filename = str(stats.get("filename") or "")
+    progress = _num(display.get("progress"), 4) or _num(sdcard.get("progress"), 4) or 0.0
     meta = live.file_meta if live.file_meta and live.file_meta.get("filename") == filename else {}
-    estimated = meta.get("estimated_time")
-    duration = float(stats.get("print_duration") or 0.0)
+    estimated = _num(meta.get("estimated_time"), 0)
+    duration = _num(stats.get("print_duration"), 1) or 0.0
     eta = (
         eta_seconds(progress, duration, estimated)
         if print_state in ("printing", "paused")
         else None
     )
-    thumbs = meta.get("thumbnails") or []
+    thumbs = [t for t in meta.get("thumbnails") or [] if isinstance(t, dict)]
     thumbnail = (
-        max(thumbs, key=lambda t: t.get("width", 0)).get("relative_path") if thumbs else None
+        max(thumbs, key=lambda t: _num(t.get("width")) or 0).get("relative_path")
+        if thumbs
+        else None
     )
     position = toolhead.get("position")
+    if not isinstance(position, list) or not all(isinstance(v, int | float) for v in position):
+        position = None
     # A shallow copy: nested values of the cached dump are shared, and views are never
     # modified once built (the hub diffs them, the API serializes them).
     view: View = dict(_config_dumps(config)[0])
@@ -166,8 +172,8 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
             "eta_seconds": round(eta) if eta is not None else None,
             "estimated_time": estimated,
             "print_duration": round(duration),
-            "total_duration": round(float(stats.get("total_duration") or 0.0)),
-            "message": stats.get("message") or display.get("message") or "",
+            "total_duration": round(_num(stats.get("total_duration")) or 0.0),
+            "message": str(stats.get("message") or display.get("message") or ""),
             "layer": info.get("current_layer"),
             "total_layers": info.get("total_layer"),
             "thumbnail": thumbnail,
@@ -175,10 +181,8 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         extruder=_heater(status.get("extruder", {})),
         bed=_heater(status.get("heater_bed", {})),
         toolhead={
-            "position": [round(float(v), 2) for v in position[:4]]
-            if isinstance(position, list)
-            else None,
-            "homed_axes": toolhead.get("homed_axes", ""),
+            "position": [round(float(v), 2) for v in position[:4]] if position else None,
+            "homed_axes": str(toolhead.get("homed_axes") or ""),
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
         speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),

@@ -183,6 +183,11 @@ class MoonrakerSession:
         await cancel_and_wait(task)
 
     @property
+    def connected(self) -> bool:
+        """Whether the socket is open now (calls can go over it)."""
+        return self._ws is not None
+
+    @property
     def running(self) -> bool:
         """Whether the background task is alive."""
         return self._task is not None and not self._task.done()

@@ -103,12 +103,6 @@ async def test_a_fleet_of_faulty_printers_keeps_its_healthy_printer_live(
             real.stop()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="fleet_view.fuse trusts field types (float('half') for a progress) and "
-    "Hub.flush lets one printer's render error escape: one bad printer breaks "
-    "GET /api/printers for the whole fleet. Fix belongs in fleet_view/fleet_hub.",
-)
 async def test_wrong_field_types_from_one_printer_do_not_break_the_fleet_view(
     standins: StartStandin, http: httpx.AsyncClient, tmp_path: Path
 ) -> None:
@@ -123,9 +117,12 @@ async def test_wrong_field_types_from_one_printer_do_not_break_the_fleet_view(
         await asyncio.sleep(0.5)  # every bad delta has been sent at least once
         views = {v["id"]: v for v in service.views()}
         assert views["healthy"]["connection"] == "online"
-        first = views["healthy"]["extruder"]["temperature"]
+        assert views["broken"]["connection"] == "online"
+        # The healthy printer's view keeps moving (its stand-in's temperatures change by
+        # 0.001 °C a tick, below the view's 0.1 °C rounding, so watch updated_at).
+        first = views["healthy"]["updated_at"]
         await asyncio.sleep(0.5)
-        assert service.view("healthy")["extruder"]["temperature"] != first
+        assert service.view("healthy")["updated_at"] != first
     finally:
         await service.stop()
 

@@ -119,7 +119,9 @@ async def kill_klippy(stack: PrinterStack, watch: Watch) -> tuple[list[float], l
     for n in range(KILLS):
         heated = n in HEATED_KILLS
         if heated:
-            await watch.client.gcode_script("M104 S150", timeout=10)
+            # Far from its target, so the heater is surely on (not idling at target) when
+            # Klippy dies: only then does the MCU watchdog trip.
+            await watch.client.gcode_script("M104 S250", timeout=10)
             await asyncio.sleep(0.5)
         mark = len(watch.events)
         await asyncio.to_thread(stack.kill_klippy)
