@@ -128,8 +128,8 @@ class Capabilities(_Model):
     )
 
 
-class PrinterConfig(_Model):
-    """One printer as stored in printers.json, API key included."""
+class _PrinterFields(_Model):
+    """The fields a stored printer and a new one share (``id`` first, as in the file)."""
 
     id: Slug = Field(description=_DOC["id"])
     name: Name = Field(description=_DOC["name"])
@@ -143,6 +143,10 @@ class PrinterConfig(_Model):
     capabilities: Capabilities = Field(
         default_factory=Capabilities, description=_DOC["capabilities"]
     )
+
+
+class PrinterConfig(_PrinterFields):
+    """One printer as stored in printers.json, API key included."""
 
     def public(self) -> PrinterPublic:
         """The view every API response and CLI listing uses: no API key, only whether one is set."""
@@ -172,20 +176,11 @@ class PrinterPublic(_Model):
     capabilities: Capabilities = Field(description=_DOC["capabilities"])
 
 
-class PrinterCreate(_Model):
+class PrinterCreate(_PrinterFields):
     """A new printer. Without ``id``, one is derived from ``name``."""
 
-    id: Slug | None = Field(default=None, description=_DOC["id"] + " Derived from name if absent.")
-    name: Name = Field(description=_DOC["name"])
-    model: ShortText = Field(default="", description=_DOC["model"])
-    location: ShortText = Field(default="", description=_DOC["location"])
-    tags: Tags = Field(default_factory=list, description=_DOC["tags"])
-    notes: Notes = Field(default="", description=_DOC["notes"])
-    moonraker_url: Url = Field(description=_DOC["moonraker_url"])
-    api_key: ApiKey = Field(default=None, description=_DOC["api_key"])
-    enabled: bool = Field(default=True, description=_DOC["enabled"])
-    capabilities: Capabilities = Field(
-        default_factory=Capabilities, description=_DOC["capabilities"]
+    id: Slug | None = Field(  # type: ignore[assignment]  # optional here, required stored
+        default=None, description=_DOC["id"] + " Derived from name if absent."
     )
 
     def to_config(self, printer_id: str) -> PrinterConfig:
