@@ -46,9 +46,14 @@ async def test_fleet_view_shows_every_printer_live(
 ) -> None:
     # Klippy reports its first thermistor readings a moment after `ready`.
     await mirror.wait(
-        lambda: all((mirror.printers[p]["bed"]["temperature"] or 0) > 10 for p in FLEET),
+        lambda: all(
+            (mirror.printers[p][heater]["temperature"] or 0) > 10
+            for p in FLEET
+            for heater in ("extruder", "bed")
+        ),
         what="live temperatures",
     )
+    # The fleet list is what the browsers were sent: the same published views.
     views = (await api.get("/api/printers")).json()
     assert tuple(v["id"] for v in views[:3]) == FLEET
     for view in views[:3]:

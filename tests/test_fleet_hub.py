@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 from typing import Any
 
+import pytest
+
+from kybercore import fleet_hub
 from kybercore.fleet_hub import QUEUE_FRAMES, Hub, HubClient
+from kybercore.printer_state import merge_status
 
 
 class Fleet:
@@ -136,3 +141,68 @@ def test_disconnected_clients_get_nothing() -> None:
     hub.flush()
     assert frames(client) == []
     assert hub.client_count == 0
+
+
+def test_the_fleet_list_is_the_published_views_and_follows_every_flush() -> None:
+    fleet = Fleet()
+    hub = Hub(fleet.render)
+    for printer in ("a", "b", "c"):
+        fleet.views[printer] = {"id": printer, "progress": 0}
+        hub.mark(printer)
+    hub.flush()
+    assert json.loads(hub.fleet_json()) == [fleet.views[p] for p in ("a", "b", "c")]
+    assert hub.fleet_json() is hub.fleet_json()  # one body for every reader of a tick
+
+    fleet.views["b"]["progress"] = 7
+    del fleet.views["c"]
+    hub.mark("b")
+    hub.mark("c")
+    assert json.loads(hub.fleet_json())[1]["progress"] == 0  # not published yet
+    hub.flush()
+    assert json.loads(hub.fleet_json()) == [fleet.views["a"], fleet.views["b"]]
+    assert hub.views() == [fleet.views["a"], fleet.views["b"]]
+    client = hub.connect()
+    [snapshot] = frames(client)
+    assert snapshot["printers"] == [fleet.views["a"], fleet.views["b"]]
+
+
+async def test_a_tick_renders_in_slices_and_a_flush_between_them_loses_nothing(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(fleet_hub, "SLICE_SECONDS", 0.0)  # one printer per slice
+    fleet = Fleet()
+
+    def change_a_again_and_flush() -> None:
+        # Runs while the tick yields between its slices, as a request or a browser
+        # connecting would: it publishes before the tick does.
+        fleet.views["a"].update(progress=2, temp=5)
+        hub.mark("a")
+        hub.flush()
+
+    def render(printer_id: str) -> dict[str, Any] | None:
+        if printer_id == "a" and fleet.views["a"]["progress"] == 1:
+            asyncio.get_running_loop().call_soon(change_a_again_and_flush)
+        return fleet.render(printer_id)
+
+    hub = Hub(render, tick=0.01)
+    for printer in ("a", "b"):
+        fleet.views[printer] = {"id": printer, "progress": 0, "temp": 0, "layer": 0}
+        hub.mark(printer)
+    client = hub.connect()
+    state = {p["id"]: p for p in frames(client)[0]["printers"]}
+    fleet.views["a"].update(progress=1, layer=1)
+    fleet.views["b"]["progress"] = 1
+    hub.mark("a")
+    hub.mark("b")
+    hub.start()
+    try:
+        for _ in range(100):
+            await asyncio.sleep(0.01)
+            for frame in frames(client):
+                state = merge_status(state, frame["printers"])
+            if state == fleet.views:
+                break
+    finally:
+        await hub.stop()
+    assert state["a"] == {"id": "a", "progress": 2, "temp": 5, "layer": 1}
+    assert state["b"] == fleet.views["b"]

@@ -108,8 +108,9 @@ def test_diff_sends_only_what_changed() -> None:
 
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.text(max_size=5),
-    lambda children: st.lists(children, max_size=3)
-    | st.dictionaries(st.text(max_size=3), children, max_size=3),
+    lambda children: (
+        st.lists(children, max_size=3) | st.dictionaries(st.text(max_size=3), children, max_size=3)
+    ),
     max_leaves=10,
 )
 views = st.dictionaries(st.text(max_size=4), json_values, max_size=5)
@@ -157,3 +158,20 @@ def test_temperature_gcode() -> None:
     assert temperature_gcode({"bed": 0}) == "M140 S0"
     with pytest.raises(InvalidInput):
         temperature_gcode({})
+
+
+def test_what_fuse_remembers_per_config_follows_the_live_state() -> None:
+    # fuse() keeps derived values per config object; they must follow the same printer's
+    # live state as it changes in place, as the fleet service changes it.
+    printer = live(detected={})
+    assert fuse(CONFIG, printer)["actions"]["pause"] is True
+    printer.status = merge_status(printer.status, {"print_stats": {"state": "paused"}})
+    paused = fuse(CONFIG, printer)["actions"]
+    assert (paused["pause"], paused["resume"]) == (False, True)
+    printer.klippy_state = "shutdown"
+    assert fuse(CONFIG, printer)["actions"]["resume"] is False
+    printer.klippy_state = "ready"
+    assert fuse(CONFIG, printer)["capabilities"]["nozzle_diameter"] is None
+    printer.detected = {"nozzle_diameter": 0.6}
+    assert fuse(CONFIG, printer)["capabilities"]["nozzle_diameter"] == 0.6
+    assert facts(CONFIG, printer).nozzle_diameter == 0.6

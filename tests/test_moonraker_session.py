@@ -9,8 +9,8 @@ from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 import httpx
+import picows
 import pytest
-import websockets
 
 from kybercore.errors import MoonrakerRpcError, PrinterAuthFailed, PrinterUnreachable
 from kybercore.moonraker_client import MoonrakerClient
@@ -172,7 +172,7 @@ async def test_api_key_over_http_and_websocket_from_an_untrusted_address(
             response = await trusted.get(f"{stack.url}/access/api_key")
             key = response.json()["result"]
         transport = httpx.AsyncHTTPTransport(local_address="127.0.0.2")
-        connect = functools.partial(websockets.connect, local_addr=("127.0.0.2", 0))
+        connect = functools.partial(picows.ws_connect, local_addr=("127.0.0.2", 0))
         async with httpx.AsyncClient(transport=transport, trust_env=False) as untrusted:
             anonymous = MoonrakerClient(stack.url, untrusted, name="auth")
             with pytest.raises(PrinterAuthFailed):

@@ -163,7 +163,7 @@ def _routes(app: FastAPI) -> None:
     @app.get("/api/printers", responses={200: {"model": list[PrinterView]}}, dependencies=[VIEWER])
     async def list_printers(request: Request) -> Response:
         """Every printer: configuration fused with live state, from the live cache."""
-        return ORJSONResponse(_service(request).views())
+        return Response(_service(request).fleet_json(), media_type="application/json")
 
     @app.post(
         "/api/printers",

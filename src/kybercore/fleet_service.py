@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any, BinaryIO, Final
 
 import httpx
-import websockets
+import picows
 
 from kybercore.advisor import AdvisorConfig, advise, combine
 from kybercore.aio import cancel_and_wait
@@ -82,7 +82,7 @@ class FleetService:
         registry: PrinterRegistry,
         http: httpx.AsyncClient,
         *,
-        connect: Connect = websockets.connect,
+        connect: Connect = picows.ws_connect,
         watch_interval: float = 1.0,
         advisor: AdvisorConfig | None = None,
     ) -> None:
@@ -134,18 +134,20 @@ class FleetService:
     # -- reading -----------------------------------------------------------------------
 
     def views(self) -> list[View]:
-        """Every printer, fused with its live state (fresh: renders what changed)."""
-        self.hub.flush()
-        return [view for pid in self._printers if (view := self.hub.view(pid)) is not None]
+        """Every printer fused with its live state, as last published to the browsers (at
+        most one hub tick, 100 ms, old): reading the fleet never renders it."""
+        return self.hub.views()
+
+    def fleet_json(self) -> bytes:
+        """:meth:`views` as a JSON array, shared by every reader until the next tick."""
+        return self.hub.fleet_json()
 
     def view(self, printer_id: str) -> View:
-        """One printer's fused view."""
-        self._get(printer_id)
-        self.hub.flush()
+        """One printer's view, as last published (like :meth:`views`)."""
+        printer = self._get(printer_id)
         view = self.hub.view(printer_id)
-        if view is None:
-            raise UnknownPrinter(printer_id)
-        return view
+        # Unpublished only when its first render failed: render here, to surface why.
+        return view if view is not None else fuse(printer.config, printer.live)
 
     def config(self, printer_id: str) -> PrinterConfig:
         """A printer's configuration (with the API key: never send it to a client)."""
@@ -189,7 +191,8 @@ class FleetService:
         self.hub.event({"type": "config", "ok": False, "message": error.message})
 
     def _apply(self, printers: list[PrinterConfig]) -> None:
-        """Make the running sessions match ``printers``: start, stop or restart them."""
+        """Make the running sessions match ``printers`` (start, stop or restart them) and
+        publish the result at once, so the fleet list shows it when a request returns."""
         wanted = {p.id: p for p in printers}
         for printer_id in list(self._printers):
             if printer_id not in wanted:
@@ -204,6 +207,7 @@ class FleetService:
                     self._spawn(self._close(current))
                 self._printers[printer_id] = self._open(config)
             self.hub.mark(printer_id)
+        self.hub.flush()
 
     def _open(self, config: PrinterConfig) -> _Printer:
         if not config.enabled:

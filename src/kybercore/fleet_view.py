@@ -9,7 +9,6 @@ between two such dicts so only that goes over the wire.
 from __future__ import annotations
 
 import contextlib
-import functools
 import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -39,49 +38,72 @@ class LivePrinter:
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
-    return round(float(value), digits) if isinstance(value, int | float) else None
+    if type(value) is float:  # nearly always: the fast path of the hottest helper
+        return round(value, digits)
+    return round(float(value), digits) if isinstance(value, (int, float)) else None
 
 
 # fuse() runs for every status update of every printer (4 Hz each); dumping the pydantic
-# config and re-deriving the allowed actions were half its cost. A config object is replaced
-# on every edit, never changed in place, so its dumps are kept for as long as it lives.
-_dumps: dict[int, tuple[View, dict[str, Any]]] = {}
+# config, merging capabilities and re-deriving the allowed actions were most of its cost. A
+# config object is replaced on every edit, never changed in place, and so is
+# ``LivePrinter.detected``: what derives from them is kept for as long as they live.
+@dataclass
+class _ConfigDerived:
+    public: View
+    configured: dict[str, Any]
+    """``config.capabilities`` as JSON data; None where printers.json leaves a value out."""
+    detected: dict[str, Any] | None = None
+    capabilities: dict[str, Any] = field(default_factory=dict)
+    """``configured`` completed from ``detected`` (the object it was computed from)."""
+    actions_key: tuple[Any, ...] | None = None
+    actions: dict[str, bool] = field(default_factory=dict)
+    """:func:`allowed_actions` for the live state in ``actions_key``."""
 
 
-def _config_dumps(config: PrinterConfig) -> tuple[View, dict[str, Any]]:
-    """``config.public()`` and ``config.capabilities`` as JSON data, once per config object."""
+_derived: dict[int, _ConfigDerived] = {}
+
+
+def _config_derived(config: PrinterConfig) -> _ConfigDerived:
     key = id(config)
-    dumps = _dumps.get(key)
-    if dumps is None:
-        dumps = (
+    derived = _derived.get(key)
+    if derived is None:
+        derived = _ConfigDerived(
             config.public().model_dump(mode="json"),
             config.capabilities.model_dump(mode="json"),
         )
-        _dumps[key] = dumps
-        weakref.finalize(config, _dumps.pop, key, None)
-    return dumps
+        _derived[key] = derived
+        weakref.finalize(config, _derived.pop, key, None)
+    return derived
 
 
-@functools.lru_cache(maxsize=4096)
-def _cached_actions(printer: PrinterFacts) -> dict[str, bool]:
-    return allowed_actions(printer)
-
-
-def _actions(printer: PrinterFacts) -> dict[str, bool]:
-    """:func:`allowed_actions`, remembered per distinct facts (a fleet has few of them)."""
-    try:
-        return dict(_cached_actions(printer))
-    except TypeError:  # unhashable: odd values from a misbehaving peer; compute afresh
-        return allowed_actions(printer)
+def _actions(config: PrinterConfig, live: LivePrinter) -> dict[str, bool]:
+    """:func:`allowed_actions`, derived again only when an input of :func:`facts` changed
+    (printers change state far less often than they report temperatures)."""
+    derived = _config_derived(config)
+    key = (
+        capabilities(config, live),
+        live.connection,
+        live.klippy_state,
+        live.status.get("print_stats", {}).get("state"),
+        live.status.get("toolhead", {}).get("axis_minimum"),
+    )
+    if derived.actions_key != key:
+        derived.actions = allowed_actions(facts(config, live))
+        derived.actions_key = key
+    return derived.actions
 
 
 def capabilities(config: PrinterConfig, live: LivePrinter) -> dict[str, Any]:
-    """What validation uses: printers.json's values, else what Klippy reports."""
-    configured = _config_dumps(config)[1]
-    return {
-        key: value if value is not None else live.detected.get(key)
-        for key, value in configured.items()
-    }
+    """What validation uses: printers.json's values, else what Klippy reports.
+    Shared between calls: never modify the result."""
+    derived = _config_derived(config)
+    if derived.detected is not live.detected:
+        derived.capabilities = {
+            key: value if value is not None else live.detected.get(key)
+            for key, value in derived.configured.items()
+        }
+        derived.detected = live.detected
+    return derived.capabilities
 
 
 def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
@@ -154,11 +176,11 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         else None
     )
     position = toolhead.get("position")
-    if not isinstance(position, list) or not all(isinstance(v, int | float) for v in position):
+    if not isinstance(position, list) or not all(isinstance(v, (int, float)) for v in position):
         position = None
     # A shallow copy: nested values of the cached dump are shared, and views are never
     # modified once built (the hub diffs them, the API serializes them).
-    view: View = dict(_config_dumps(config)[0])
+    view: View = dict(_config_derived(config).public)
     view["capabilities"] = capabilities(config, live)
     view.update(
         connection=live.connection,
@@ -186,7 +208,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
         speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),
-        actions=_actions(facts(config, live)),
+        actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )
     return view
@@ -212,9 +234,10 @@ def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
     patch: dict[str, Any] = {}
     for key, value in new.items():
         previous = old.get(key, _ABSENT)
-        if value == previous:
+        if value is previous or value == previous:
             # Most of a view is unchanged: one C-level comparison instead of a recursion
-            # into each nested dict (capabilities, actions, job, heaters).
+            # into each nested dict (capabilities, actions, job, heaters); the parts fuse()
+            # reuses (config, capabilities, actions) are the very same objects.
             continue
         if isinstance(value, dict) and isinstance(previous, dict):
             inner = diff(previous, value)

@@ -19,7 +19,7 @@ from urllib.parse import quote, urlsplit, urlunsplit
 
 import httpx
 import orjson
-import websockets
+import picows
 
 from kybercore import __version__
 from kybercore.errors import (
@@ -102,7 +102,7 @@ class MoonrakerClient:
         on_event: EventCallback | None = None,
         subscription: Mapping[str, list[str] | None] = FLEET_OBJECTS,
         client_name: str = AGENT_NAME,
-        connect: Connect = websockets.connect,
+        connect: Connect = picows.ws_connect,
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self.name = name

@@ -4,7 +4,8 @@ The session identifies itself as an agent, waits while Klippy starts, subscribes
 objects it was given and hands every notification to a callback. When the socket drops,
 every pending call fails at once with :class:`PrinterUnreachable` and the session
 reconnects by itself, forever, with capped exponential backoff and jitter; after each
-reconnect (and after ``notify_klippy_ready``) it subscribes again.
+reconnect (and after ``notify_klippy_ready``) it subscribes again. The socket itself is
+:mod:`kybercore.moonraker_socket`.
 """
 
 from __future__ import annotations
@@ -20,8 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 import orjson
-import websockets
-from websockets.asyncio.client import ClientConnection
+import picows
 
 from kybercore.aio import cancel_and_wait
 from kybercore.errors import (
@@ -32,18 +32,22 @@ from kybercore.errors import (
     PrinterTimeout,
     PrinterUnreachable,
 )
+from kybercore.moonraker_socket import Connect as Connect  # re-exported for the callers
+from kybercore.moonraker_socket import LinkLost, MoonrakerLink, open_link
 from kybercore.printer_state import Status, klippy_state_after
 
 log = logging.getLogger(__name__)
 
 # Enough for Klippy's `configfile` object, small enough that a runaway frame cannot eat memory.
 MAX_FRAME_BYTES: Final = 8 * 1024 * 1024
-# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT + CLOSE_TIMEOUT seconds.
+# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT seconds: after PING_INTERVAL
+# without a byte from it, a ping; no pong within PING_TIMEOUT cuts the link.
 PING_INTERVAL: Final = 5.0
 PING_TIMEOUT: Final = 5.0
-# A peer that stopped answering pings will not answer a close frame either: don't wait for
-# it (websockets' default, 10 s, would keep a dead printer "online" that much longer).
+# How long a close frame we send waits for Moonraker's answer before the socket is cut.
+# (A silent peer is cut by the keepalive itself, without waiting.)
 CLOSE_TIMEOUT: Final = 1.0
+# TCP connect plus WebSocket upgrade: a peer that accepts TCP and stalls must not hang us.
 OPEN_TIMEOUT: Final = 5.0
 CALL_TIMEOUT: Final = 10.0
 # While Klippy starts, Moonraker's guide asks clients to poll server.info every 2 s.
@@ -51,19 +55,6 @@ KLIPPY_POLL_SECONDS: Final = 2.0
 # Wrong credentials will not fix themselves: retry slowly so Moonraker is not hammered.
 AUTH_RETRY_SECONDS: Final = 60.0
 _SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
-
-
-class _NoDebugLogger(logging.LoggerAdapter):  # type: ignore[type-arg]
-    """websockets logs handshake headers, the API key among them, at DEBUG: never let it."""
-
-    def isEnabledFor(self, level: int) -> bool:
-        return level > logging.DEBUG and self.logger.isEnabledFor(level)
-
-
-_WS_LOG: Final = _NoDebugLogger(logging.getLogger("kybercore.moonraker_session.ws"), {})
-
-Connect = Callable[..., Any]
-"""Factory with the signature of :func:`websockets.asyncio.client.connect` (injectable)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,7 +137,7 @@ class MoonrakerSession:
         on_event: EventCallback,
         client_name: str,
         version: str,
-        connect: Connect = websockets.connect,
+        connect: Connect = picows.ws_connect,
         backoff: Backoff | None = None,
     ) -> None:
         self.ws_url = ws_url
@@ -161,7 +152,7 @@ class MoonrakerSession:
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Any]] = {}
         self._methods: dict[int, str] = {}
-        self._ws: ClientConnection | None = None
+        self._link: MoonrakerLink | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
         self._up = False
@@ -185,7 +176,7 @@ class MoonrakerSession:
     @property
     def connected(self) -> bool:
         """Whether the socket is open now (calls can go over it)."""
-        return self._ws is not None
+        return self._link is not None
 
     @property
     def running(self) -> bool:
@@ -198,8 +189,8 @@ class MoonrakerSession:
         self, method: str, params: Mapping[str, Any] | None = None, timeout: float = CALL_TIMEOUT
     ) -> Any:
         """Send one JSON-RPC request over the socket and return its ``result``."""
-        ws = self._ws
-        if ws is None:
+        link = self._link
+        if link is None:
             raise PrinterUnreachable(
                 f"not connected to Moonraker at {self.ws_url} ({self.last_error or 'connecting'})",
                 printer=self.name,
@@ -212,10 +203,8 @@ class MoonrakerSession:
         if params is not None:
             request["params"] = dict(params)
         try:
-            await ws.send(orjson.dumps(request).decode())
+            link.send(orjson.dumps(request))
             return await asyncio.wait_for(future, timeout)
-        except websockets.ConnectionClosed as exc:
-            raise self._unreachable(f"connection closed ({exc})") from exc
         except TimeoutError as exc:
             raise PrinterTimeout(
                 f"Moonraker did not answer '{method}' within {timeout:g} s", printer=self.name
@@ -231,17 +220,8 @@ class MoonrakerSession:
         ``None`` when there is no open socket to ask. Moonraker answers pings even while a
         long G-code runs, so this tells a slow command from a frozen host.
         """
-        ws = self._ws
-        if ws is None:
-            return None
-        try:
-            pong = await ws.ping()
-            await asyncio.wait_for(pong, timeout)
-        except TimeoutError:
-            return False
-        except websockets.ConnectionClosed:
-            return None
-        return True
+        link = self._link
+        return None if link is None else await link.ping(timeout)
 
     async def resubscribe(self) -> None:
         """Subscribe again (for example after changing what to watch)."""
@@ -292,27 +272,26 @@ class MoonrakerSession:
             retry_after: float | None = None
             peer_left = False
             self._up = False
+            link: MoonrakerLink | None = None
             try:
-                headers = {"X-Api-Key": self._api_key} if self._api_key else {}
-                async with self._connect(
+                link = await open_link(
                     self.ws_url,
-                    additional_headers=headers,
+                    name=self.name,
+                    on_message=self._dispatch,
+                    headers={"X-Api-Key": self._api_key} if self._api_key else {},
+                    connect=self._connect,
                     open_timeout=OPEN_TIMEOUT,
                     ping_interval=PING_INTERVAL,
                     ping_timeout=PING_TIMEOUT,
-                    close_timeout=CLOSE_TIMEOUT,
-                    max_size=MAX_FRAME_BYTES,
-                    proxy=None,
-                    compression=None,
-                    logger=_WS_LOG,
-                ) as ws:
-                    started = time.monotonic()
-                    await self._serve(ws)
+                    max_bytes=MAX_FRAME_BYTES,
+                )
+                started = time.monotonic()
+                await self._serve(link)
             except asyncio.CancelledError:
                 self._drop("KyberCore is stopping this session")
                 raise
-            except websockets.InvalidStatus as exc:
-                status = exc.response.status_code
+            except picows.WSInvalidStatusError as exc:
+                status = int(exc.response.status) if exc.response else 0
                 if status in (401, 403):
                     retry_after = AUTH_RETRY_SECONDS
                     self._drop(f"Moonraker refused the API key (HTTP {status})", "auth_failed")
@@ -321,11 +300,13 @@ class MoonrakerSession:
             except PrinterAuthFailed as exc:
                 retry_after = AUTH_RETRY_SECONDS
                 self._drop(exc.message, "auth_failed")
-            except (OSError, TimeoutError, websockets.WebSocketException, PrinterError) as exc:
+            except LinkLost as exc:
                 # Moonraker went away (not: we closed on a fault such as an oversized frame).
-                peer_left = isinstance(exc, OSError) or (
-                    isinstance(exc, websockets.ConnectionClosed) and exc.sent is None
-                )
+                peer_left = exc.by_peer
+                self._drop(exc.why)
+            except (OSError, TimeoutError, picows.WSError, PrinterError) as exc:
+                # OSError: Moonraker's socket refused or reset us (a restart, most likely).
+                peer_left = isinstance(exc, OSError)
                 self._drop(_describe(exc))
             except Exception as exc:
                 # A bug, or a Moonraker answer no one foresaw: the session must outlive it
@@ -335,6 +316,10 @@ class MoonrakerSession:
             else:
                 peer_left = True
                 self._drop("Moonraker closed the connection")
+            finally:
+                # After _drop: pending calls fail at once, not after the goodbye.
+                if link is not None:
+                    await link.close(CLOSE_TIMEOUT)
             if peer_left and self._up:
                 # A healthy session ended by Moonraker (a restart): come back at once, however
                 # many restarts came before. Faults we detected keep backing off.
@@ -345,7 +330,7 @@ class MoonrakerSession:
 
     def _drop(self, why: str, connection: str = "offline") -> None:
         """Forget the socket and fail every pending call at once."""
-        self._ws = None
+        self._link = None
         error = self._unreachable(why)
         for future in self._pending.values():
             if not future.done():
@@ -354,19 +339,21 @@ class MoonrakerSession:
         self._set_klippy("disconnected")
         self._set_connection(connection, why)
 
-    async def _serve(self, ws: ClientConnection) -> None:
-        self._ws = ws
-        reader = asyncio.create_task(self._read(ws), name=f"moonraker-reader:{self.name}")
+    async def _serve(self, link: MoonrakerLink) -> None:
+        """Until the link is lost (:class:`LinkLost`) or following Klippy fails."""
+        self._link = link
+        closed = asyncio.create_task(link.wait_closed(), name=f"moonraker-link:{self.name}")
         follower = asyncio.create_task(self._identify_and_follow(), name=f"klippy:{self.name}")
         try:
-            done, _ = await asyncio.wait({reader, follower}, return_when=asyncio.FIRST_COMPLETED)
-            for task in done:
-                task.result()
+            await asyncio.wait({closed, follower}, return_when=asyncio.FIRST_COMPLETED)
+            for task in (follower, closed):
+                if task.done():
+                    task.result()
         finally:
-            self._ws = None
-            reader.cancel()
+            self._link = None
+            closed.cancel()
             follower.cancel()
-            await asyncio.gather(reader, follower, return_exceptions=True)
+            await asyncio.gather(closed, follower, return_exceptions=True)
 
     async def _identify_and_follow(self) -> None:
         params: dict[str, Any] = {
@@ -410,24 +397,6 @@ class MoonrakerSession:
                 self._set_klippy(state)
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
-
-    async def _read(self, ws: ClientConnection) -> None:
-        ignored = 0
-        async for frame in ws:
-            try:
-                message = orjson.loads(frame)
-            except orjson.JSONDecodeError:
-                ignored += 1
-                # Once per connection at WARNING: a broken peer must not flood the log.
-                log.log(
-                    logging.WARNING if ignored == 1 else logging.DEBUG,
-                    "%s: ignored a frame that is not JSON (%d on this connection)",
-                    self.name,
-                    ignored,
-                )
-                continue
-            if isinstance(message, dict):
-                self._dispatch(message)
 
     def _dispatch(self, message: dict[str, Any]) -> None:
         if "id" in message and ("result" in message or "error" in message):

@@ -80,13 +80,13 @@ def _guarded_http() -> httpx.AsyncClient:
     return httpx.AsyncClient(transport=LoopbackOnly(), timeout=10, trust_env=False)
 
 
-def _guarded_connect(url: str, **options: Any) -> Any:
+async def _guarded_connect(listener_factory: Any, url: str, **options: Any) -> Any:
     host = httpx.URL(url).host
     if not _loopback(host):
         raise OSError(f"fuzzing stays on loopback, not {host}")
-    import websockets  # the real factory, only after the check
+    import picows  # the real factory, only after the check
 
-    return websockets.connect(url, **options)
+    return await picows.ws_connect(listener_factory, url, **options)
 
 
 @pytest.fixture(scope="module")
