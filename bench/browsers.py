@@ -9,9 +9,9 @@ KyberCore.
 
 ``python -m bench.browsers --url ws://127.0.0.1:PORT/ws --clients M --seconds S --out F``
 prints ``{"ready": true, "connected": k}`` once every client has its snapshot, then, after S
-seconds, writes F: ``{"frames", "bytes", "resyncs", "observations": [{"printer", "value",
-"t"}]}``, one observation list per measuring client: printer id, print duration, monotonic
-time of arrival.
+seconds, writes F: ``{"frames", "bytes", "resyncs", "cpu_seconds", "observations":
+[{"printer", "value", "t"}]}``, one observation list per measuring client: printer id,
+print duration, monotonic time of arrival.
 """
 
 from __future__ import annotations
@@ -88,7 +88,9 @@ async def run(url: str, clients: int, seconds: float, connect_timeout: float) ->
     done, _ = await asyncio.wait(ready, timeout=connect_timeout)
     connected = sum(not f.exception() for f in done)
     print(orjson.dumps({"ready": True, "connected": connected}).decode(), flush=True)
+    cpu = time.process_time()
     await asyncio.sleep(seconds)
+    cpu = time.process_time() - cpu
     for task in tasks:
         task.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
@@ -100,6 +102,7 @@ async def run(url: str, clients: int, seconds: float, connect_timeout: float) ->
         # Each drain client's first snapshot is its initial one, not a resync.
         "resyncs": tally.resyncs + sum(max(d.snapshots - 1, 0) for d in drains),
         "observations": tally.observations,
+        "cpu_seconds": cpu,
     }
 
 

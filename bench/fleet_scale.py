@@ -132,14 +132,16 @@ def _durations(views: list[dict[str, Any]]) -> dict[str, int]:
 
 
 async def _measure(
-    pid: int,
+    pids: tuple[int, int],
     http: httpx.AsyncClient,
     ws_url: str,
     fleet: tuple[int, int],
     seconds: float,
     work: Path,
 ) -> dict[str, Any]:
-    """The measured window: browsers listening, the fleet view polled, CPU and RSS read."""
+    """The measured window: browsers listening, the fleet view polled, CPU and RSS read.
+    ``pids``: KyberCore's and the load generator's."""
+    pid, loadgen_pid = pids
     printers, clients = fleet
     out = work / "browsers.json"
     # Every browser first gets a snapshot of the whole fleet (~1 KB per printer).
@@ -148,6 +150,10 @@ async def _measure(
     args += ["--connect-timeout", str(connect), "--out", str(out)]
     async with procs.child("-m", "bench.browsers", *args) as browsers:
         hello = await procs.read_json_line(browsers, connect + 10)
+        # Every process's share of the 2 cores in the window: what KyberCore competes with.
+        # (The browsers process exits at the end of the window; it reports its own.)
+        shares = {"loadgen": loadgen_pid, "harness": os.getpid()}
+        others = {name: procs.cpu_seconds(p) for name, p in shares.items()}
         cpu = procs.cpu_seconds(pid)
         view_times: list[float] = []
         polls: list[tuple[float, dict[str, int]]] = []
@@ -171,6 +177,7 @@ async def _measure(
         await reader.close()
         cpu = procs.cpu_seconds(pid) - cpu
         cpu_window = time.monotonic() - started
+        others = {name: procs.cpu_seconds(p) - others[name] for name, p in shares.items()}
         rss = procs.rss_kib(pid)
         await asyncio.wait_for(browsers.wait(), connect)
     received = orjson.loads(out.read_bytes())
@@ -179,6 +186,11 @@ async def _measure(
         "ingest_events_per_s": None,
         "cpu_seconds": cpu,
         "cpu_window": cpu_window,
+        "cores_busy": {
+            "kybercore": round(cpu / cpu_window, 2),
+            **{name: round(used / cpu_window, 2) for name, used in others.items()},
+            "browsers": round(received.pop("cpu_seconds") / seconds, 2),
+        },
         "rss_kib": rss,
         "fleet_view_ms": {**report.spread(view_times, 1000), "failed": failures},
         "observations": received.pop("observations"),
@@ -277,7 +289,8 @@ async def run(
                 if settled is not None:
                     ws_url = f"ws://127.0.0.1:{port}/ws"
                     fleet = (printers, clients)
-                    measured = await _measure(process.pid, http, ws_url, fleet, seconds, work)
+                    pids = (process.pid, loadgen.pid)
+                    measured = await _measure(pids, http, ws_url, fleet, seconds, work)
                     pause = await _bulk_pause(http, ids)
             await procs.command(loadgen, f"dump {work / 'sent.json'}", _limit(printers))
             sent_log = orjson.loads((work / "sent.json").read_bytes())
@@ -345,6 +358,7 @@ def _figures(
         if ingest is None
         else round(measured["cpu_seconds"] / (ingest * measured["cpu_window"]) * 1000, 4),
         "browsers": measured["browsers"],
+        "cores_busy": measured["cores_busy"],
     }
 
 

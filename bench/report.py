@@ -121,6 +121,7 @@ _ROWS = (
     ("KyberCore CPU (cores busy)", ("cpu_cores",)),
     ("CPU s per 1,000 events", ("cpu_seconds_per_1000_events",)),
     ("browser frames / resyncs", ("browsers",)),
+    ("cores busy: KyberCore / load gen. / browsers / harness", ("cores_busy",)),
 )
 
 
@@ -128,6 +129,9 @@ def _cell(value: Any) -> str:
     if isinstance(value, Mapping):
         if "p95" in value:
             return " / ".join(_cell(value[key]) for key in ("p50", "p95", "p99"))
+        if "loadgen" in value:
+            parts = ("kybercore", "loadgen", "browsers", "harness")
+            return " / ".join(f"{value[key]:.2f}" for key in parts)
         if "frames" in value:
             return f"{value['frames']:,} / {value['resyncs']}"
         if "settled" in value:

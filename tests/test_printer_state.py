@@ -8,7 +8,7 @@ from typing import Any
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kybercore.printer_state import klippy_state_after, merge_status
+from kybercore.printer_state import apply_status, klippy_state_after, merge_status
 
 FIELDS = st.dictionaries(
     st.sampled_from(["temperature", "target", "position", "info", "state"]),
@@ -60,6 +60,9 @@ def test_merging_leaves_its_inputs_untouched_and_wins_field_by_field(
                 assert merged[obj][key] == value
     for obj in set(snapshot) - set(delta):
         assert merged[obj] is snapshot[obj]  # untouched objects are shared, not copied
+    # The in-place form the fleet service uses on its own live state gives the same result.
+    apply_status(snapshot, delta)
+    assert snapshot == merged
 
 
 def test_klippy_state_follows_notifications_and_webhooks() -> None:

@@ -145,13 +145,18 @@ class Hub:
             next_tick = max(next_tick + self._tick, loop.time())
             await asyncio.sleep(next_tick - loop.time())
             try:
-                # In slices of SLICE_SECONDS, so requests and sockets are served between
-                # them: rendering 2,000 changed printers at once stalls everything ~100 ms.
+                # In slices, so requests and sockets are served between them: rendering
+                # 2,000 changed printers at once stalls everything ~100 ms. A slice lasts
+                # SLICE_SECONDS, or as long as the other work took while it waited, so a
+                # busy fleet cannot starve the browsers of their updates.
                 dirty = self._take_dirty()
+                budget = SLICE_SECONDS
                 while dirty:
-                    dirty = self._render(dirty, until=time.perf_counter() + SLICE_SECONDS)
+                    dirty = self._render(dirty, until=time.perf_counter() + budget)
                     if dirty:
+                        waited = time.perf_counter()
                         await asyncio.sleep(0)
+                        budget = max(SLICE_SECONDS, time.perf_counter() - waited)
                 self._publish()
             except Exception:
                 # One bad render must not stop every browser's updates.

@@ -55,7 +55,7 @@ from kybercore.moonraker_session import (
     StatusSnapshot,
 )
 from kybercore.printer_config import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.printer_state import merge_status
+from kybercore.printer_state import apply_status
 from kybercore.registry import PrinterRegistry
 from kybercore.validation import Verdict, validate
 
@@ -235,7 +235,7 @@ class FleetService:
         heard_before, live.updated_at = live.updated_at, time.time()
         pid = printer.config.id
         if isinstance(event, StatusDelta):
-            live.status = merge_status(live.status, event.delta)
+            apply_status(live.status, event.delta)  # the live state is ours alone
             self._follow_file(printer)
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
