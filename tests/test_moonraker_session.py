@@ -14,7 +14,7 @@ import pytest
 
 from kybercore.errors import MoonrakerRpcError, PrinterAuthFailed, PrinterUnreachable
 from kybercore.moonraker_client import MoonrakerClient
-from kybercore.moonraker_session import (
+from kybercore.session_events import (
     ConnectionChanged,
     KlippyChanged,
     SessionEvent,

@@ -45,8 +45,11 @@ from kybercore.fleet_actions import (
 from kybercore.fleet_hub import Hub
 from kybercore.fleet_view import LivePrinter, View, detect_capabilities, facts, fuse
 from kybercore.moonraker_client import MoonrakerClient
-from kybercore.moonraker_session import (
-    Connect,
+from kybercore.moonraker_socket import Connect
+from kybercore.printer_config import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.printer_state import apply_status
+from kybercore.registry import PrinterRegistry
+from kybercore.session_events import (
     ConnectionChanged,
     KlippyChanged,
     Notification,
@@ -54,9 +57,6 @@ from kybercore.moonraker_session import (
     StatusDelta,
     StatusSnapshot,
 )
-from kybercore.printer_config import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.printer_state import apply_status
-from kybercore.registry import PrinterRegistry
 from kybercore.validation import Verdict, validate
 
 log = logging.getLogger(__name__)

@@ -30,8 +30,10 @@ from kybercore.errors import (
     PrinterTimeout,
     PrinterUnreachable,
 )
-from kybercore.moonraker_session import Connect, EventCallback, MoonrakerSession, SessionEvent
+from kybercore.moonraker_session import MoonrakerSession
+from kybercore.moonraker_socket import Connect
 from kybercore.printer_state import Status
+from kybercore.session_events import EventCallback, SessionEvent
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,8 @@ objects it was given and hands every notification to a callback. When the socket
 every pending call fails at once with :class:`PrinterUnreachable` and the session
 reconnects by itself, forever, with capped exponential backoff and jitter; after each
 reconnect (and after ``notify_klippy_ready``) it subscribes again. The socket itself is
-:mod:`kybercore.moonraker_socket`.
+:mod:`kybercore.moonraker_socket`; what the session reports is in
+:mod:`kybercore.session_events`, its reconnect delays in :mod:`kybercore.backoff`.
 """
 
 from __future__ import annotations
@@ -14,16 +15,15 @@ import asyncio
 import contextlib
 import itertools
 import logging
-import random
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any, Final
 
 import orjson
 import picows
 
 from kybercore.aio import cancel_and_wait
+from kybercore.backoff import Backoff
 from kybercore.errors import (
     KlippyNotReady,
     MoonrakerRpcError,
@@ -32,9 +32,17 @@ from kybercore.errors import (
     PrinterTimeout,
     PrinterUnreachable,
 )
-from kybercore.moonraker_socket import Connect as Connect  # re-exported for the callers
-from kybercore.moonraker_socket import LinkLost, MoonrakerLink, open_link
+from kybercore.moonraker_socket import Connect, LinkLost, MoonrakerLink, open_link
 from kybercore.printer_state import Status, klippy_state_after
+from kybercore.session_events import (
+    ConnectionChanged,
+    EventCallback,
+    KlippyChanged,
+    Notification,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
 
 log = logging.getLogger(__name__)
 
@@ -55,73 +63,6 @@ KLIPPY_POLL_SECONDS: Final = 2.0
 # Wrong credentials will not fix themselves: retry slowly so Moonraker is not hammered.
 AUTH_RETRY_SECONDS: Final = 60.0
 _SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
-
-
-@dataclass(frozen=True, slots=True)
-class ConnectionChanged:
-    """The session's link to Moonraker changed: ``connecting|online|offline|auth_failed``."""
-
-    connection: str
-    detail: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class KlippyChanged:
-    """Klippy's state as Moonraker reports it: ``ready|startup|shutdown|error|disconnected``."""
-
-    state: str
-    message: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class StatusSnapshot:
-    """The full state of the subscribed objects, sent after every (re)subscription."""
-
-    status: Status
-
-
-@dataclass(frozen=True, slots=True)
-class StatusDelta:
-    """Only the fields that changed (``notify_status_update``)."""
-
-    delta: Status
-    eventtime: float
-
-
-@dataclass(frozen=True, slots=True)
-class Notification:
-    """Any other Moonraker notification (gcode responses, history, file list, ...)."""
-
-    method: str
-    params: list[Any]
-
-
-SessionEvent = ConnectionChanged | KlippyChanged | StatusSnapshot | StatusDelta | Notification
-EventCallback = Callable[[SessionEvent], None]
-
-
-class Backoff:
-    """Exponential backoff with jitter, capped; reset once a connection proved healthy
-    (it lasted ``healthy_after`` seconds, or the session called :meth:`reset`)."""
-
-    def __init__(self, base: float = 0.5, cap: float = 30.0, healthy_after: float = 30.0) -> None:
-        self.base = base
-        self.cap = cap
-        self.healthy_after = healthy_after
-        self._attempt = 0
-
-    def next_delay(self, connected_for: float) -> float:
-        """Delay before the next attempt, given how long the last connection lasted."""
-        if connected_for >= self.healthy_after:
-            self._attempt = 0
-        ceiling = min(self.cap, self.base * 2**self._attempt)
-        self._attempt += 1
-        # Full jitter spreads a room of printers that all dropped at once.
-        return float(ceiling / 2 + random.uniform(0, ceiling / 2))
-
-    def reset(self) -> None:
-        """Start again from ``base``: the peer answered, so the next drop is news."""
-        self._attempt = 0
 
 
 class MoonrakerSession:

@@ -11,12 +11,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from kybercore.moonraker_session import (
-    ConnectionChanged,
-    SessionEvent,
-    StatusDelta,
-    StatusSnapshot,
-)
+from kybercore.session_events import ConnectionChanged, SessionEvent, StatusDelta, StatusSnapshot
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -27,12 +27,7 @@ import httpx
 import pytest
 
 from kybercore.moonraker_client import MoonrakerClient
-from kybercore.moonraker_session import (
-    ConnectionChanged,
-    KlippyChanged,
-    SessionEvent,
-    StatusSnapshot,
-)
+from kybercore.session_events import ConnectionChanged, KlippyChanged, SessionEvent, StatusSnapshot
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import wait_for
 

@@ -18,9 +18,11 @@ from collections.abc import AsyncIterator, Callable
 import pytest
 
 from kybercore import moonraker_session
+from kybercore.backoff import Backoff
 from kybercore.errors import MoonrakerRpcError, PrinterUnreachable
 from kybercore.moonraker_client import FLEET_OBJECTS, websocket_url
-from kybercore.moonraker_session import Backoff, MoonrakerSession, StatusDelta
+from kybercore.moonraker_session import MoonrakerSession
+from kybercore.session_events import StatusDelta
 from tests.hardening.conftest import (
     FAST_OPEN_TIMEOUT,
     FAST_PING_INTERVAL,
