@@ -378,8 +378,12 @@ def test_add_derives_unique_ids(registry: PrinterRegistry) -> None:
 
 def test_explicit_id_collision(registry: PrinterRegistry) -> None:
     registry.add(new("A", id="a"))
-    with pytest.raises(InvalidInput, match="id 'a' already exists"):
+    with pytest.raises(InvalidInput, match="id 'a' already exists") as caught:
         registry.add(new("Other", id="a"))
+    # The dashboard shows the reason in the user's language.
+    [reason] = caught.value.reasons
+    assert (reason["code"], reason["level"]) == ("id_taken", "block")
+    assert "Ya existe una impresora con el id 'a'" in reason["es"]
 
 
 def test_update_and_remove(path: Path, registry: PrinterRegistry) -> None:

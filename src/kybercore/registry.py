@@ -184,10 +184,18 @@ class PrinterRegistry:
         def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
             taken = {p.id for p in printers}
             if new.id is not None and new.id in taken:
-                raise InvalidInput(
+                error = InvalidInput(
                     f"A printer with id '{new.id}' already exists. Choose another id, or "
                     f"edit the existing printer."
                 )
+                # The dashboard shows reasons in its language; this one has no other source.
+                spanish = (
+                    f"Ya existe una impresora con el id '{new.id}'. Elige otro id o edita "
+                    "la impresora existente."
+                )
+                reason = {"code": "id_taken", "level": "block", "category": "input"}
+                error.reasons = ({**reason, "en": error.message, "es": spanish},)
+                raise error
             printer = new.to_config(new.id or _free_id(slugify(new.name), taken))
             printers.append(printer)
             return printer
