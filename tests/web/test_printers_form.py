@@ -146,7 +146,8 @@ def test_the_backends_field_problems_appear_under_their_fields_in_spanish(
     expect(form.locator(".form-error")).to_be_hidden()
     page.screenshot(path=str(ARTIFACTS / "printer-form-field-errors-es.png"))
 
-    # Fixed, but the id is taken: a 422 without fields, so its message is shown on top.
+    # Fixed, but the id is taken: a 422 without fields, so its reason is shown on top, in
+    # the page's language.
     taken = api.post("/api/printers", json={**body, "id": "fleet-a", "name": "X",
                                             "moonraker_url": fleet_stacks[0].url,
                                             "capabilities": {}})  # fmt: skip
@@ -157,7 +158,9 @@ def test_the_backends_field_problems_appear_under_their_fields_in_spanish(
     url.fill(fleet_stacks[0].url)
     form.get_by_label("Boquilla (mm)").fill("")
     form.get_by_role("button", name="Añadir impresora").click()
-    expect(form.locator(".form-error")).to_have_text(taken.json()["error"]["message"])
+    [reason] = taken.json()["error"]["reasons"]
+    expect(form.locator(".form-error")).to_have_text(reason["es"])
+    expect(form.locator(".form-error")).to_contain_text("Ya existe una impresora")
     for error in (url_error, nozzle_error, form.locator("#pf-name-error")):
         expect(error).to_be_hidden()
     expect(url).not_to_have_attribute("aria-invalid", "true")
