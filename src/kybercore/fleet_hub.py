@@ -196,9 +196,7 @@ class Hub:
             if patch:
                 # Rendered twice before a publish (a flush between two slices): one patch.
                 unsent = self._unsent.get(printer_id)
-                self._unsent[printer_id] = (
-                    patch if unsent is None else merge_status({"p": unsent}, {"p": patch})["p"]
-                )
+                self._unsent[printer_id] = patch if unsent is None else merge_status(unsent, patch)
         return []
 
     def _publish(self) -> None:
