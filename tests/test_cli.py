@@ -13,12 +13,16 @@ runner = CliRunner()
 
 
 def test_serve_refuses_a_broken_printers_json_naming_line_and_reason(tmp_path: Path) -> None:
-    broken = tmp_path / "printers.json"
+    # A long folder (a CI workspace, a long home) must not wrap the message at 80 columns.
+    deep = tmp_path / ("long-folder-name-" * 8) / "[farm]"
+    deep.mkdir(parents=True)
+    broken = deep / "printers.json"
     broken.write_text('{"version": 1,\n "printers": [\n  {"id": "a",, }\n ]}\n')
     result = runner.invoke(app, ["serve", "--printers-file", str(broken)])
     assert result.exit_code == 1
-    assert "line 3" in result.output
-    assert str(broken) in result.output.replace("\n", "")
+    error_line = next(line for line in result.output.splitlines() if "Error:" in line)
+    assert "line 3" in error_line
+    assert str(broken) in error_line
     assert "Traceback" not in result.output
     assert broken.read_text().startswith('{"version": 1,')  # untouched
 

@@ -13,12 +13,12 @@ from typing import Annotated
 import typer
 import uvicorn
 from pydantic import SecretStr
-from rich.console import Console
 from rich.table import Table
 
 from kybercore import __version__
 from kybercore.advisor import AdvisorConfig
 from kybercore.auth import TokenStore, access_mode, tokens_path_for
+from kybercore.cli_output import console, fail
 from kybercore.cli_printers import printers_app
 from kybercore.cli_tokens import tokens_app
 from kybercore.errors import KyberCoreError
@@ -36,8 +36,6 @@ app = typer.Typer(
 )
 app.add_typer(printers_app, name="printers")
 app.add_typer(tokens_app, name="tokens")
-console = Console()
-err = Console(stderr=True)
 
 Host = Annotated[str, typer.Option(help="Address to listen on.")]
 Port = Annotated[int, typer.Option(help="Port of the dashboard and API.")]
@@ -45,11 +43,6 @@ PrintersFile = Annotated[
     Path | None,
     typer.Option("--printers-file", envvar="KYBERCORE_PRINTERS", help="Path of printers.json."),
 ]
-
-
-def _fail(message: str) -> typer.Exit:
-    err.print(f"[red]Error:[/red] {message}", highlight=False)
-    return typer.Exit(1)
 
 
 @app.command()
@@ -92,7 +85,7 @@ def serve(
         ensure_port_free(port, host)
         registry = _open_registry(path)
     except KyberCoreError as exc:
-        raise _fail(exc.message) from None
+        raise fail(exc.message) from None
     _run_server(registry, host, port, access, advisor=advisor, log_level=log_level)
 
 
@@ -124,7 +117,7 @@ def demo(
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
             _run_server(registry, host, port, access)
     except KyberCoreError as exc:
-        raise _fail(exc.message) from None
+        raise fail(exc.message) from None
     console.print("Stopped the dashboard and every virtual printer.")
 
 
@@ -149,7 +142,7 @@ def sim(
             console.print("\nPress Ctrl-C to stop every virtual printer.")
             _wait_for_ctrl_c()
     except KyberCoreError as exc:
-        raise _fail(exc.message) from None
+        raise fail(exc.message) from None
     console.print("Stopped every virtual printer.")
 
 

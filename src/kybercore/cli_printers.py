@@ -15,10 +15,10 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 from pydantic import ValidationError
-from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from kybercore.cli_output import console, done, fail
 from kybercore.errors import InvalidInput, KyberCoreError
 from kybercore.printer_config import PrinterCreate, PrinterUpdate
 from kybercore.registry import PrinterRegistry
@@ -108,7 +108,7 @@ def list_printers(
             "yes" if p.enabled else "no",
             "set" if p.api_key else "not set",
         )
-    Console().print(table)
+    console.print(table)
 
 
 @printers_app.command("add")
@@ -147,7 +147,7 @@ def add_printer(
             capabilities=_capabilities(size, nozzle, material, max_extruder_temp, max_bed_temp),
         )
         printer = _registry(ctx).add(new)
-    _done(f"Added printer '{printer.id}' ({printer.name}) at {printer.moonraker_url}.")
+    done(f"Added printer '{printer.id}' ({printer.name}) at {printer.moonraker_url}.")
 
 
 @printers_app.command("edit")
@@ -194,7 +194,7 @@ def edit_printer(
         if not patch.model_fields_set:
             raise InvalidInput("Nothing to change: give at least one option (see --help).")
         printer = _registry(ctx).update(printer_id, patch)
-    _done(f"Updated printer '{printer.id}' ({printer.name}).")
+    done(f"Updated printer '{printer.id}' ({printer.name}).")
 
 
 @printers_app.command("remove")
@@ -213,7 +213,7 @@ def remove_printer(
         raise typer.Exit(1)
     with _errors():
         registry.remove(printer_id)
-    _done(f"Removed printer '{printer_id}'.")
+    done(f"Removed printer '{printer_id}'.")
 
 
 def _registry(ctx: typer.Context) -> PrinterRegistry:
@@ -264,15 +264,6 @@ def _errors() -> Iterator[None]:
     try:
         yield
     except InvalidInput as exc:
-        _fail(exc.message, code=2)
+        raise fail(exc.message, code=2) from None
     except KyberCoreError as exc:
-        _fail(exc.message, code=1)
-
-
-def _fail(message: str, *, code: int) -> None:
-    Console(stderr=True).print(Text(f"Error: {message}", style="red"), soft_wrap=True)
-    raise typer.Exit(code)
-
-
-def _done(message: str) -> None:
-    Console().print(Text(message, style="green"), soft_wrap=True)
+        raise fail(exc.message, code=1) from None

@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from kybercore.auth import ROLES, TokenStore, tokens_path_for
+from kybercore.cli_output import console, fail
 from kybercore.errors import KyberCoreError
 from kybercore.registry import default_printers_path
 
@@ -18,8 +18,6 @@ tokens_app = typer.Typer(
     help="Create, list and revoke access tokens (roles: viewer, operator, admin).",
     no_args_is_help=True,
 )
-console = Console()
-err = Console(stderr=True)
 
 PrintersFile = Annotated[
     Path | None,
@@ -45,8 +43,7 @@ def create(
     try:
         record, token = _store(printers_file).create(name, role)
     except KyberCoreError as exc:
-        err.print(f"[red]Error:[/red] {exc.message}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc.message, code=2) from None
     console.print(f"Created token {record.id} for {record.name} ({record.role}).")
     console.print("Copy it now; it is not shown again:\n")
     print(token)
@@ -73,6 +70,5 @@ def revoke(
     try:
         record = _store(printers_file).revoke(token_id)
     except KyberCoreError as exc:
-        err.print(f"[red]Error:[/red] {exc.message}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc.message, code=2) from None
     console.print(f"Revoked {record.id} ({record.name}).")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -76,6 +77,16 @@ class PrinterStack:
         return Path(f"/tmp/klipper_host_kc_{self.options.name}_{self._tag}")  # noqa: S108
 
     @property
+    def comms_dir(self) -> Path:
+        """Where the sockets and Klippy's input pty live: a short folder of this stack's own.
+
+        A Unix socket path holds at most 108 bytes, and the data folder can be anywhere (a
+        long home, a CI workspace, a long ``TMPDIR``), so the sockets never live under it:
+        ``data_dir/comms`` is a link to this folder, which Moonraker follows.
+        """
+        return Path(f"/tmp/kc-{self._tag}")  # noqa: S108
+
+    @property
     def pids(self) -> dict[str, int]:
         """PIDs of the processes this stack started and that are still running."""
         return {name: p.pid for name, p in self._procs.items() if p.poll() is None}
@@ -107,6 +118,7 @@ class PrinterStack:
         for handle in self._logs:
             handle.close()
         self._logs.clear()
+        shutil.rmtree(self.comms_dir, ignore_errors=True)
 
     def start_mcu(self) -> None:
         """Start the virtual MCU and wait for its pty link to appear."""
@@ -129,6 +141,9 @@ class PrinterStack:
                 str(self.data_dir / "config" / "printer.cfg"),
                 "-a",
                 str(self._klippy_socket),
+                # Its own input pty: printers started together never race for /tmp/printer.
+                "-I",
+                str(self.comms_dir / "printer"),
                 "-l",
                 str(self.data_dir / "logs" / "klippy.log"),
             ],
@@ -170,6 +185,7 @@ class PrinterStack:
             while time.monotonic() < deadline:
                 for name in ("mcu", "klippy", "moonraker"):
                     self._check_alive(name)
+                self._check_klippy_started()
                 with contextlib.suppress(httpx.HTTPError, ValueError):
                     info = http.get(f"{self.url}/server/info").json()["result"]
                     state = info["klippy_state"]
@@ -191,11 +207,17 @@ class PrinterStack:
 
     @property
     def _klippy_socket(self) -> Path:
-        return self.data_dir / "comms" / "klippy.sock"
+        return self.comms_dir / "klippy.sock"
 
     def _write_config(self) -> None:
-        for sub in ("config", "logs", "gcodes", "comms", "database", "misc"):
+        for sub in ("config", "logs", "gcodes", "database", "misc"):
             (self.data_dir / sub).mkdir(parents=True, exist_ok=True)
+        self.comms_dir.mkdir(mode=0o700, exist_ok=True)
+        link = self.data_dir / "comms"
+        if link.is_dir() and not link.is_symlink():
+            shutil.rmtree(link)  # a folder of stale sockets from an older layout
+        link.unlink(missing_ok=True)
+        link.symlink_to(self.comms_dir)
         # Moonraker downloads usb.ids at start unless the file exists: we have no internet.
         (self.data_dir / "misc" / "usb.ids").touch()
         opts = self.options
@@ -235,6 +257,19 @@ class PrinterStack:
         proc = self._procs.get(name)
         if proc is not None and proc.poll() is None:
             raise ConfigError(f"{self.options.name}: {name} is already running (pid {proc.pid})")
+
+    def _check_klippy_started(self) -> None:
+        """Fail at once when Klippy died at start: its process can outlive its main thread."""
+        out = self.data_dir / "logs" / "klippy.out"
+        try:
+            text = out.read_text(errors="replace")
+        except OSError:
+            return
+        if "Traceback" in text:
+            cause = text.strip().splitlines()[-1]
+            raise ConfigError(
+                f"{self.options.name}: Klippy failed at start ({cause}).\n{self._tails()}"
+            )
 
     def _check_alive(self, name: str) -> None:
         proc = self._procs.get(name)
