@@ -3,25 +3,36 @@
 from __future__ import annotations
 
 import asyncio
+import inspect
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import httpx
 
 
 async def wait_for(
-    predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition"
+    predicate: Callable[[], bool | Awaitable[bool]],
+    timeout: float = 10.0,
+    what: str = "condition",
 ) -> float:
-    """Wait until ``predicate()`` is true; return the seconds it took."""
+    """Wait until ``predicate()`` is true (it may be a coroutine function, e.g. one that asks
+    a server); return the seconds it took."""
     start = time.monotonic()
-    while not predicate():
+    while not await _holds(predicate):
         if time.monotonic() - start > timeout:
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        await asyncio.sleep(0.02)
+        await asyncio.sleep(0.02)  # poll: wait for the predicate, deadline above
     return time.monotonic() - start
+
+
+async def _holds(predicate: Callable[[], bool | Awaitable[bool]]) -> bool:
+    result = predicate()
+    if inspect.isawaitable(result):
+        result = await result
+    return bool(result)
 
 
 def travel_gcode(moves: int = 40, feedrate: int = 1200) -> bytes:
@@ -69,7 +80,7 @@ class KyberCoreServer:
                 httpx.get(f"{self.url}/api/session", timeout=1).raise_for_status()
                 return
             except httpx.HTTPError:
-                time.sleep(0.1)
+                time.sleep(0.1)  # poll: wait for the server to answer, deadline above
         raise AssertionError(f"kybercore serve did not answer:\n{self.log.read_text()[-3000:]}")
 
     def stop(self) -> None:
@@ -94,5 +105,5 @@ class KyberCoreServer:
             ]
             if len(ready) >= count:
                 return
-            time.sleep(0.1)
+            time.sleep(0.1)  # poll: wait for the printers to be ready, deadline above
         raise AssertionError(f"printers not online in time: {views}")

@@ -24,6 +24,17 @@ pytestmark = pytest.mark.integration
 FLEET = ("fleet-a", "fleet-b", "fleet-c")
 SECRET = "sk-kybercore-test-SECRET-" + uuid.uuid4().hex
 
+# Promises, each with at least 5x slack over its figure on an idle machine (measured by
+# `python -m bench.promises`, which prints the precise figures; see bench/README.md).
+LIVE_WITHIN = 2.0
+"""A status change reaches the browser: idle median 0.16-0.23 s, max 0.35 s (5.7x)."""
+OFFLINE_WITHIN = 2.0
+"""Moonraker gone (its process has exited) -> the browser shows the printer offline: idle
+0-21 ms (the session notices while Moonraker exits; the hub publishes within a 0.1 s tick)."""
+REFUSED_WITHIN = 1.0
+"""An action on an offline printer -> 503: idle 3-4 ms. Anything that waited on the printer
+would take at least PROBE_AFTER (1.5 s) before giving up."""
+
 
 @pytest.fixture
 async def api(kybercore_server: KyberCoreServer) -> AsyncIterator[httpx.AsyncClient]:
@@ -70,16 +81,14 @@ async def test_fleet_view_shows_every_printer_live(
     assert heights == [250, 400, 180]
     assert mirror.printers["fleet-c"]["capabilities"]["nozzle_diameter"] == 0.6
 
-    # A status change on one printer reaches the browser in under a second.
+    # A status change on one printer reaches the browser, live.
     answer = await api.post("/api/printers/fleet-a/gcode", json={"script": "M104 S45"})
     assert answer.status_code == 200, answer.text
-    sent = time.monotonic()
     try:
         took = await mirror.wait(
             lambda: mirror.printers["fleet-a"]["extruder"]["target"] == 45, what="target 45"
         )
-        assert took < 1.0
-        assert time.monotonic() - sent < 1.0
+        assert took < LIVE_WITHIN
     finally:
         await api.post("/api/printers/fleet-a/gcode", json={"script": "M104 S0"})
 
@@ -156,11 +165,11 @@ async def test_a_printer_going_offline_and_coming_back(
         took = await mirror.wait(
             lambda: mirror.printers["flaky"]["connection"] == "offline", what="offline"
         )
-        assert took < 2.0
+        assert took < OFFLINE_WITHIN
         started = time.monotonic()
         answer = await api.post("/api/printers/flaky/actions/home")
         assert answer.status_code == 503
-        assert time.monotonic() - started < 1.0
+        assert time.monotonic() - started < REFUSED_WITHIN
         assert "reconnects by itself" in answer.json()["error"]["message"]
         # Other printers are unaffected.
         assert (await api.get("/api/printers/fleet-a")).json()["connection"] == "online"

@@ -197,7 +197,7 @@ async def test_a_tick_renders_in_slices_and_a_flush_between_them_loses_nothing(
     hub.start()
     try:
         for _ in range(100):
-            await asyncio.sleep(0.01)
+            await asyncio.sleep(0.01)  # poll: wait for the state to converge, 100 tries
             for frame in frames(client):
                 state = merge_status(state, frame["printers"])
             if state == fleet.views:

@@ -11,8 +11,9 @@ import pytest
 
 from kybercore.errors import MoonrakerRpcError, PrinterAuthFailed
 from kybercore.moonraker_client import MoonrakerClient
+from kybercore.session_events import KlippyChanged
 from kybercore.sim.stack import PrinterStack
-from tests.helpers import travel_gcode
+from tests.helpers import travel_gcode, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -32,7 +33,7 @@ async def wait_print_state(client: MoonrakerClient, state: str, timeout: float =
     deadline = asyncio.get_running_loop().time() + timeout
     while (seen := await print_state(client)) != state:
         assert asyncio.get_running_loop().time() < deadline, f"still {seen!r}, wanted {state!r}"
-        await asyncio.sleep(0.1)
+        await asyncio.sleep(0.1)  # poll: wait for the print state, deadline above
 
 
 async def test_info_objects_and_query(client: MoonrakerClient) -> None:
@@ -117,32 +118,48 @@ async def test_emergency_stop_firmware_restart_and_restart(
     own_printer: PrinterStack, http: httpx.AsyncClient
 ) -> None:
     client = MoonrakerClient(own_printer.url, http, name="own")
-    await client.emergency_stop()
+    # A session of its own reports every change of Klippy's state, however short.
+    seen: list[str] = []
+    watcher = MoonrakerClient(
+        own_printer.url,
+        http,
+        name="own-watcher",
+        on_event=lambda e: seen.append(e.state) if isinstance(e, KlippyChanged) else None,
+    )
+    watcher.start()
+    try:
+        await client.emergency_stop()
 
-    async def klippy_state() -> str:
-        try:
-            return str((await client.server_info())["klippy_state"])
-        except MoonrakerRpcError:
-            return "unknown"
+        async def klippy_state() -> str:
+            try:
+                return str((await client.server_info())["klippy_state"])
+            except MoonrakerRpcError:
+                return "unknown"
 
-    states: list[str] = []
+        states: list[str] = []
 
-    async def wait_state(wanted: str) -> None:
-        for _ in range(200):
-            states.append(await klippy_state())
-            if states[-1] == wanted:
-                return
-            await asyncio.sleep(0.05)
-        raise AssertionError(f"Klippy never reached {wanted}: {states[-5:]}")
+        async def wait_state(wanted: str) -> None:
+            for _ in range(200):
+                states.append(await klippy_state())
+                if states[-1] == wanted:
+                    return
+                await asyncio.sleep(0.05)  # poll: wait for the state, 200 tries
+            raise AssertionError(f"Klippy never reached {wanted}: {states[-5:]}")
 
-    await wait_state("shutdown")
-    info = await client.printer_info()
-    assert "shutdown" in info["state_message"].lower() or info["state"] == "shutdown"
-    await client.firmware_restart()
-    await wait_state("ready")
-    await client.restart()
-    await asyncio.sleep(0.3)
-    await wait_state("ready")
+        await wait_state("shutdown")
+        info = await client.printer_info()
+        assert "shutdown" in info["state_message"].lower() or info["state"] == "shutdown"
+        await client.firmware_restart()
+        await wait_state("ready")
+        # A restart that never happened must not pass: Klippy leaves ready, then comes back.
+        await wait_for(lambda: seen[-1:] == ["ready"], what="the watcher to see Klippy ready")
+        mark = len(seen)
+        await client.restart()
+        await wait_for(lambda: len(seen) > mark, what="Klippy to leave ready")
+        await wait_for(lambda: seen[-1] == "ready", timeout=20, what="Klippy back at ready")
+        await wait_state("ready")
+    finally:
+        await watcher.close()
 
 
 async def test_wrong_api_key_is_auth_failed(printer: PrinterStack, http: httpx.AsyncClient) -> None:

@@ -38,7 +38,7 @@ async def _serve(reply: bytes | None) -> tuple[asyncio.Server, str]:
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         await reader.readuntil(b"\r\n\r\n")
         if reply is None:
-            await asyncio.sleep(3600)
+            await asyncio.sleep(3600)  # stand-in: simulates a host that never answers
         writer.write(reply or b"")
         await writer.drain()
         writer.close()
@@ -71,7 +71,8 @@ async def test_a_host_that_never_answers_times_out_quickly() -> None:
             started = time.monotonic()
             with pytest.raises(PrinterTimeout, match="did not answer"):
                 await client.server_info()
-            assert time.monotonic() - started < 2.0
+            # Promise: the client's timeout (0.5 s here) is kept. Idle: 0.50 s; 5x slack.
+            assert time.monotonic() - started < 2.5
     finally:
         server.close()
 
@@ -88,7 +89,7 @@ async def test_printer_endpoints_before_klippy_ever_connects(
                 info = await client.server_info()
                 break
             except PrinterUnreachable:
-                await asyncio.sleep(0.1)
+                await asyncio.sleep(0.1)  # poll: wait for Moonraker to listen, 100 tries
         assert info["klippy_connected"] is False
         with pytest.raises(KlippyNotReady, match="Klippy is not connected"):
             await client.printer_info()

@@ -26,6 +26,7 @@ from kybercore.printer_config import (
     slugify,
 )
 from kybercore.registry import PrinterRegistry, default_printers_path, read_printers
+from tests.helpers import wait_for
 
 SECRET = "s3cr3t-moonraker-key-0123456789"
 
@@ -563,6 +564,15 @@ async def test_watch_reports_good_and_bad_edits(path: Path, registry: PrinterReg
     async def on_change(printers: list[PrinterConfig]) -> None:
         await changes.put(printers)
 
+    checks = 0
+    changed = registry.changed
+
+    def counting_changed() -> bool:
+        nonlocal checks
+        checks += 1
+        return changed()
+
+    registry.changed = counting_changed  # type: ignore[method-assign]
     task = asyncio.create_task(registry.watch(on_change, errors.put_nowait, interval=0.01))
     try:
         await asyncio.to_thread(PrinterRegistry(path).add, new("B", id="b"))
@@ -574,7 +584,9 @@ async def test_watch_reports_good_and_bad_edits(path: Path, registry: PrinterReg
         assert "not valid JSON" in error.message
         assert [p.id for p in registry.printers] == ["a", "b"]
 
-        await asyncio.sleep(0.05)  # the same broken file is not reported again
+        # The same broken file is not reported again, however often the file is checked.
+        seen = checks
+        await wait_for(lambda: checks >= seen + 5, what="five more checks of the file")
         assert changes.empty()
         assert errors.empty()
     finally:

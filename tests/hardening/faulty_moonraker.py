@@ -134,7 +134,11 @@ class FaultyMoonraker:
         self.port = 0
         self.connections = 0
         """TCP connections accepted (each one is a session attempt)."""
+        self.connected_at: list[float] = []
+        """``time.monotonic()`` of every connection accepted."""
         self.subscriptions = 0
+        self.junk_sent = 0
+        """Junk frames sent so far (the scenario's list, cycled), over every connection."""
         self.huge_frames_sent = 0
         self.silenced_at: list[float] = []
         """``time.monotonic()`` of every moment a connection went silent."""
@@ -186,6 +190,7 @@ class FaultyMoonraker:
     async def _stall(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Accept the TCP connection, read the upgrade request, never answer it."""
         self.connections += 1
+        self.connected_at.append(time.monotonic())
         self._stalled.append(writer)
         with contextlib.suppress(ConnectionError):
             while await reader.read(65536):
@@ -193,6 +198,7 @@ class FaultyMoonraker:
 
     async def _serve(self, ws: ServerConnection) -> None:
         self.connections += 1
+        self.connected_at.append(time.monotonic())
         self._open.add(ws)
         streamer: asyncio.Task[None] | None = None
         try:
@@ -268,8 +274,9 @@ class FaultyMoonraker:
                     await asyncio.Event().wait()
                 if extra is not None:
                     await ws.send(next(extra))
+                    self.junk_sent += 1
                 await ws.send(_delta(20.0 + tick / 1000))
-                await asyncio.sleep(self.interval)
+                await asyncio.sleep(self.interval)  # stand-in: paces its stream as Moonraker does
 
     def _huge_frame(self) -> str:
         if self._huge is None:
@@ -300,7 +307,7 @@ async def _main(scenario: str) -> None:
     print(f"PORT {standin.port}", flush=True)
     reported = 0
     while True:  # tell the parent about every connection and 50 MB frame
-        await asyncio.sleep(0.05)
+        await asyncio.sleep(0.05)  # stand-in: reports its counters every 50 ms
         if standin.connections + standin.huge_frames_sent != reported:
             reported = standin.connections + standin.huge_frames_sent
             print(f"CONNECTIONS {standin.connections} HUGE {standin.huge_frames_sent}", flush=True)

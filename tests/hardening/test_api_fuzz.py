@@ -117,7 +117,7 @@ def fuzz_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         deadline = time.monotonic() + 20
         while not server.started:
             assert time.monotonic() < deadline, "the fuzz server did not start"
-            time.sleep(0.05)
+            time.sleep(0.05)  # poll: wait for the server to start, deadline above
         try:
             yield url
         finally:

@@ -18,6 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from kybercore import moonraker_client
 from kybercore.printer_config import PrinterConfig
 from kybercore.registry import write_printers
 from kybercore.sim.stack import PrinterStack, free_port
@@ -27,7 +28,13 @@ from tests.helpers import KyberCoreServer
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
 ANSWER_WITHIN = 5.0
-# What each request asks of the printer; all must come back as 503, within 5 s.
+"""Promise: a printer that never answers gets 503 at once. Idle: 62 ms at the slowest of
+about 9,000 requests (80x; the test prints it)."""
+FROZEN_ANSWER_WITHIN = 17.5
+"""Promise: a frozen Moonraker gets 503 within a few seconds, never a hang. Idle: 3.5 s, the
+request's PROBE_AFTER (1.5 s) plus the ping's PROBE_TIMEOUT (2 s) (5x); bench/promises.py
+measures it. Those two constants are the promise, checked exactly below."""
+# What each request asks of the printer; all must come back as 503.
 REQUESTS: list[tuple[str, str, dict[str, object]]] = [
     ("POST", "actions/home", {}),
     ("POST", "actions/emergency_stop", {}),
@@ -84,18 +91,20 @@ def test_a_printer_that_never_answers_gets_503_within_5_s(
     with httpx.Client(base_url=dead_fleet.server.url, timeout=30) as api:
         # Whatever the session is doing (connecting, timing out, backing off), ask repeatedly.
         deadline = time.monotonic() + 8
-        rounds = 0
+        rounds, slowest = 0, 0.0
         while time.monotonic() < deadline:
             for method, path, extra in REQUESTS:
                 answer, took = timed(api, printer_id, method, path, extra)
                 assert answer.status_code == 503, (path, answer.text)
                 assert took < ANSWER_WITHIN, f"{path} took {took:.1f} s"
+                slowest = max(slowest, took)
                 error = answer.json()["error"]
                 assert error["code"] == "printer_unreachable"
                 assert printer_id in error["message"]
             rounds += 1
         view = api.get(f"/api/printers/{printer_id}").json()
         assert view["connection"] != "online"
+    print(f"\n{printer_id}: {rounds} rounds of {len(REQUESTS)} requests, slowest {slowest:.3f} s")
     assert rounds >= 2
 
 
@@ -107,7 +116,7 @@ def test_a_frozen_moonraker_never_hangs_a_request(dead_fleet: DeadFleet) -> None
         deadline = time.monotonic() + 30
         while api.get("/api/printers/frozen").json()["klippy_state"] != "ready":
             assert time.monotonic() < deadline, "the real printer never came online"
-            time.sleep(0.1)
+            time.sleep(0.1)  # poll: wait for the printer, deadline above
         os.kill(dead_fleet.frozen.pids["moonraker"], signal.SIGSTOP)
         took_all = []
         for method, path, extra in REQUESTS:
@@ -121,4 +130,5 @@ def test_a_frozen_moonraker_never_hangs_a_request(dead_fleet: DeadFleet) -> None
             # Pausing an idle printer is refused from KyberCore's own state (409), at once.
             expected = (409,) if path == "actions/pause" else (503,)
             assert status in expected, (path, status)
-            assert took < ANSWER_WITHIN, took_all
+            assert took < FROZEN_ANSWER_WITHIN, took_all
+    assert moonraker_client.PROBE_AFTER + moonraker_client.PROBE_TIMEOUT <= ANSWER_WITHIN

