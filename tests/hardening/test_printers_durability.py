@@ -24,9 +24,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.printer_config import PrinterCreate, PrinterUpdate
-from kybercore.printers_format import backup_path
-from kybercore.registry import PrinterRegistry, read_printers
+from kybercore.registry.format import backup_path
+from kybercore.registry.models import PrinterCreate, PrinterUpdate
+from kybercore.registry.store import PrinterRegistry, read_printers
 from kybercore.sim.stack import free_port
 from tests.helpers import KyberCoreServer
 

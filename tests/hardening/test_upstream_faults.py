@@ -17,12 +17,12 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 
-from kybercore import moonraker_session
-from kybercore.backoff import Backoff
 from kybercore.errors import MoonrakerRpcError, PrinterUnreachable
-from kybercore.moonraker_client import FLEET_OBJECTS, websocket_url
-from kybercore.moonraker_session import MoonrakerSession
-from kybercore.session_events import StatusDelta
+from kybercore.moonraker import session as moonraker_session
+from kybercore.moonraker.backoff import Backoff
+from kybercore.moonraker.client import FLEET_OBJECTS, websocket_url
+from kybercore.moonraker.events import StatusDelta
+from kybercore.moonraker.session import MoonrakerSession
 from tests.hardening.conftest import (
     FAST_OPEN_TIMEOUT,
     FAST_PING_INTERVAL,

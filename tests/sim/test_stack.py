@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from kybercore.errors import ConfigError
-from kybercore.moonraker_client import MoonrakerClient
+from kybercore.moonraker.client import MoonrakerClient
 from kybercore.sim import stack as stack_module
 from kybercore.sim.demo import demo_fleet, sample_files
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port

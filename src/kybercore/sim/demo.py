@@ -20,8 +20,8 @@ from typing import Final
 import filelock
 
 from kybercore.errors import ConfigError
-from kybercore.printer_config import Capabilities, PrinterConfig
-from kybercore.registry import write_printers
+from kybercore.registry.models import Capabilities, PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, StackOptions, ensure_port_free
 
 

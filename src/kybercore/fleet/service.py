@@ -1,0 +1,472 @@
+"""The fleet's business logic: fuse printers.json with live Moonraker state, validate
+actions, delegate them to Moonraker, and keep printers.json and the sessions in step.
+
+One Moonraker session per enabled printer feeds a live cache; pages and the API read the
+cache, never Moonraker directly. Every action is validated first
+(:mod:`kybercore.core.validation`), then sent, and its real outcome returned: nothing here
+reports a success that did not happen.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import gc
+import logging
+import time
+from collections.abc import Awaitable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, BinaryIO, Final
+
+import httpx
+import picows
+
+from kybercore.aio import cancel_and_wait
+from kybercore.core.validation import Verdict, validate
+from kybercore.core.view import LivePrinter, View, detect_capabilities, facts, fuse
+from kybercore.errors import (
+    ActionRejected,
+    ConfigError,
+    InvalidInput,
+    KyberCoreError,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterError,
+    PrinterUnreachable,
+    UnknownPrinter,
+)
+from kybercore.fleet.actions import (
+    ActionOutcome,
+    done_message,
+    execute,
+    failed_outcome,
+    raise_if_blocked,
+    require_confirmation,
+)
+from kybercore.fleet.advisor import AdvisorConfig, advise, combine
+from kybercore.fleet.hub import Hub
+from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    KlippyChanged,
+    Notification,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
+from kybercore.moonraker.link import Connect
+from kybercore.moonraker.objects import apply_status
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.registry.store import PrinterRegistry
+
+log = logging.getLogger(__name__)
+
+LAST_SEEN_STEP: Final = 5.0
+
+# Settings read once from Klippy's configfile when printers.json does not give them.
+_DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
+
+
+@dataclass
+class _Printer:
+    config: PrinterConfig
+    client: MoonrakerClient | None
+    live: LivePrinter = field(default_factory=LivePrinter)
+
+
+class FleetService:
+    """Owns the printers' sessions, the live cache, and every action on the fleet."""
+
+    def __init__(
+        self,
+        registry: PrinterRegistry,
+        http: httpx.AsyncClient,
+        *,
+        connect: Connect = picows.ws_connect,
+        watch_interval: float = 1.0,
+        advisor: AdvisorConfig | None = None,
+    ) -> None:
+        self.registry = registry
+        self._http = http
+        self._connect = connect
+        self._watch_interval = watch_interval
+        self._advisor = advisor
+        self._printers: dict[str, _Printer] = {}
+        self.hub = Hub(self._render)
+        self._watcher: asyncio.Task[None] | None = None
+        self._background: set[asyncio.Task[Any]] = set()
+        self.config_error: str | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Read printers.json (refusing a broken file), connect to every printer."""
+        printers = await asyncio.to_thread(self.registry.reload)
+        self._apply(printers)
+        self._spawn(self._freeze_when_connected())
+        self.hub.start()
+        self._watcher = asyncio.create_task(
+            self.registry.watch(self._on_file_change, self._on_file_error, self._watch_interval),
+            name="printers-json-watch",
+        )
+
+    async def _freeze_when_connected(self, limit: int = 120) -> None:
+        """Once the fleet is connected, move the long-lived objects (sessions, sockets) out
+        of the garbage collector's reach: full collections then scan only what churns.
+        Measured at 5,000 printers: the collector took 26 % of the CPU before."""
+        for _ in range(limit):
+            live = [p.live.connection for p in self._printers.values()]
+            if all(state in ("online", "disabled") for state in live):
+                break
+            await asyncio.sleep(1.0)
+        gc.collect()
+        gc.freeze()
+
+    async def stop(self) -> None:
+        """Close every session and stop background work."""
+        await cancel_and_wait(self._watcher)
+        for task in list(self._background):
+            task.cancel()
+        await self.hub.stop()
+        await asyncio.gather(*(self._close(p) for p in self._printers.values()))
+        self._printers.clear()
+
+    # -- reading -----------------------------------------------------------------------
+
+    def views(self) -> list[View]:
+        """Every printer fused with its live state, as last published to the browsers (at
+        most one hub tick, 100 ms, old): reading the fleet never renders it."""
+        return self.hub.views()
+
+    def fleet_json(self) -> bytes:
+        """:meth:`views` as a JSON array, shared by every reader until the next tick."""
+        return self.hub.fleet_json()
+
+    def view(self, printer_id: str) -> View:
+        """One printer's view, as last published (like :meth:`views`)."""
+        printer = self._get(printer_id)
+        view = self.hub.view(printer_id)
+        # Unpublished only when its first render failed: render here, to surface why.
+        return view if view is not None else fuse(printer.config, printer.live)
+
+    def config(self, printer_id: str) -> PrinterConfig:
+        """A printer's configuration (with the API key: never send it to a client)."""
+        return self._get(printer_id).config
+
+    def client(self, printer_id: str) -> MoonrakerClient:
+        """The Moonraker client of an enabled, connected printer."""
+        printer = self._get(printer_id)
+        _require_online(printer)
+        assert printer.client is not None  # _require_online checked it
+        return printer.client
+
+    # -- printers.json -----------------------------------------------------------------
+
+    async def add_printer(self, new: PrinterCreate) -> View:
+        """Add a printer to printers.json and connect to it."""
+        created = await asyncio.to_thread(self.registry.add, new)
+        self._apply(self.registry.printers)
+        return self.view(created.id)
+
+    async def update_printer(self, printer_id: str, patch: PrinterUpdate) -> View:
+        """Edit a printer; its session restarts when the URL, key or enabled flag changed."""
+        self._get(printer_id)
+        await asyncio.to_thread(self.registry.update, printer_id, patch)
+        self._apply(self.registry.printers)
+        return self.view(printer_id)
+
+    async def remove_printer(self, printer_id: str) -> None:
+        """Remove a printer from printers.json and disconnect from it."""
+        self._get(printer_id)
+        await asyncio.to_thread(self.registry.remove, printer_id)
+        self._apply(self.registry.printers)
+
+    def _on_file_change(self, printers: list[PrinterConfig]) -> None:
+        self.config_error = None
+        self._apply(printers)
+        self.hub.event({"type": "config", "ok": True, "message": "printers.json reloaded"})
+
+    def _on_file_error(self, error: ConfigError) -> None:
+        self.config_error = error.message
+        self.hub.event({"type": "config", "ok": False, "message": error.message})
+
+    def _apply(self, printers: list[PrinterConfig]) -> None:
+        """Make the running sessions match ``printers`` (start, stop or restart them) and
+        publish the result at once, so the fleet list shows it when a request returns."""
+        wanted = {p.id: p for p in printers}
+        for printer_id in list(self._printers):
+            if printer_id not in wanted:
+                self._spawn(self._close(self._printers.pop(printer_id)))
+                self.hub.mark(printer_id)
+        for printer_id, config in wanted.items():
+            current = self._printers.get(printer_id)
+            if current is not None and not _needs_new_session(current.config, config):
+                current.config = config
+            else:
+                if current is not None:
+                    self._spawn(self._close(current))
+                self._printers[printer_id] = self._open(config)
+            self.hub.mark(printer_id)
+        self.hub.flush()
+
+    def _open(self, config: PrinterConfig) -> _Printer:
+        if not config.enabled:
+            return _Printer(config, None, LivePrinter(connection="disabled"))
+        printer = _Printer(config, None)
+        printer.client = MoonrakerClient(
+            config.moonraker_url,
+            self._http,
+            name=config.id,
+            api_key=config.api_key.get_secret_value() if config.api_key else None,
+            on_event=lambda event: self._on_event(printer, event),
+            connect=self._connect,
+        )
+        printer.client.start()
+        return printer
+
+    async def _close(self, printer: _Printer) -> None:
+        if printer.client is not None:
+            await printer.client.close()
+
+    # -- live state --------------------------------------------------------------------
+
+    def _on_event(self, printer: _Printer, event: SessionEvent) -> None:
+        live = printer.live
+        heard_before, live.updated_at = live.updated_at, time.time()
+        pid = printer.config.id
+        if isinstance(event, StatusDelta):
+            apply_status(live.status, event.delta)  # the live state is ours alone
+            self._follow_file(printer)
+        elif isinstance(event, StatusSnapshot):
+            live.status = dict(event.status)
+            self._follow_file(printer)
+            self._spawn(self._detect_capabilities(printer))
+        elif isinstance(event, ConnectionChanged):
+            live.connection = event.connection
+            live.connection_error = event.detail
+            self.hub.event(
+                {
+                    "type": "connection",
+                    "printer": pid,
+                    "connection": event.connection,
+                    "message": event.detail,
+                }
+            )
+        elif isinstance(event, KlippyChanged):
+            live.klippy_state = event.state
+            live.klippy_message = event.message
+            self.hub.event(
+                {"type": "klippy", "printer": pid, "state": event.state, "message": event.message}
+            )
+            if event.state in ("shutdown", "error"):
+                self._spawn(self._read_klippy_message(printer))
+        elif isinstance(event, Notification):
+            if event.method == "notify_gcode_response" and event.params:
+                self.hub.console(pid, str(event.params[0]))
+            # Moonraker's 1 s process stats prove the printer is alive even when nothing
+            # changes; let `updated_at` show that, at most every LAST_SEEN_STEP seconds.
+            if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
+                return
+        self.hub.mark(pid)
+
+    def _follow_file(self, printer: _Printer) -> None:
+        """Fetch the metadata of a newly started file once (ETA, thumbnail)."""
+        filename = printer.live.status.get("print_stats", {}).get("filename") or ""
+        meta = printer.live.file_meta
+        if filename and (meta is None or meta.get("filename") != filename):
+            printer.live.file_meta = {"filename": filename}
+            self._spawn(self._load_file_meta(printer, filename))
+
+    async def _load_file_meta(self, printer: _Printer, filename: str) -> None:
+        if printer.client is None:
+            return
+        with contextlib.suppress(PrinterError):
+            meta = await printer.client.file_metadata(filename)
+            printer.live.file_meta = {**meta, "filename": filename}
+            self.hub.mark(printer.config.id)
+
+    async def _detect_capabilities(self, printer: _Printer) -> None:
+        if printer.client is None:
+            return
+        with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
+            status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
+            printer.live.detected = detect_capabilities(status["configfile"]["settings"])
+            self.hub.mark(printer.config.id)
+
+    async def _read_klippy_message(self, printer: _Printer) -> None:
+        if printer.client is None:
+            return
+        with contextlib.suppress(PrinterError, KeyError):
+            info = await printer.client.printer_info()
+            printer.live.klippy_message = str(info.get("state_message", ""))
+            self.hub.mark(printer.config.id)
+
+    def _render(self, printer_id: str) -> View | None:
+        printer = self._printers.get(printer_id)
+        return None if printer is None else fuse(printer.config, printer.live)
+
+    def _spawn(self, work: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(work)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+    # -- actions -----------------------------------------------------------------------
+
+    async def dry_run(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        force: bool = False,
+    ) -> Verdict:
+        """What would happen: the rules (with the file's real metadata) and, when one is
+        configured, the advisor's warnings. Nothing is sent to the printer."""
+        printer = self._get(printer_id)
+        meta = await self._file_meta_for(printer, action, params)
+        printer_facts = facts(printer.config, printer.live)
+        verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
+        if verdict.blocked or self._advisor is None:
+            return verdict
+        advice = await advise(self._http, self._advisor, action, printer_facts, params, meta)
+        return combine(verdict, advice)
+
+    async def act(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        force: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Validate, then run ``action`` on one printer; raise a typed error on failure."""
+        params = dict(params or {})
+        verdict = await self.dry_run(printer_id, action, params, force)
+        raise_if_blocked(verdict, printer_id)
+        warnings = require_confirmation(verdict, confirm)
+        await execute(self.client(printer_id), action, params)
+        message = done_message(action, params)
+        self._announce(printer_id, action, message)
+        return ActionOutcome(printer_id, action, True, 200, message, reasons=warnings)
+
+    async def act_many(
+        self,
+        printer_ids: list[str],
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        force: bool = False,
+        confirm: bool = False,
+    ) -> list[ActionOutcome]:
+        """One action on many printers at once; one outcome per printer, in order."""
+
+        async def one(printer_id: str) -> ActionOutcome:
+            try:
+                return await self.act(printer_id, action, params, force=force, confirm=confirm)
+            except KyberCoreError as exc:
+                return failed_outcome(printer_id, action, exc)
+
+        return list(await asyncio.gather(*(one(pid) for pid in dict.fromkeys(printer_ids))))
+
+    async def upload(
+        self,
+        printer_id: str,
+        filename: str,
+        content: bytes | BinaryIO,
+        *,
+        start: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Upload a file; with ``start``, validate it against the printer and print it."""
+        client = self.client(printer_id)
+        if start:
+            # Refuse before sending the bytes when the printer cannot start anything now.
+            printer = self._get(printer_id)
+            verdict = validate(
+                "start", facts(printer.config, printer.live), params={"filename": filename}
+            )
+            raise_if_blocked(verdict, printer_id)
+        await client.upload(filename, content)
+        outcome = ActionOutcome(printer_id, "upload", True, 201, f"Uploaded {filename}.")
+        self._announce(printer_id, "upload", outcome.message)
+        if start:
+            started = await self.act(printer_id, "start", {"filename": filename}, confirm=confirm)
+            outcome.message += " " + started.message
+            outcome.reasons = started.reasons
+        return outcome
+
+    async def files(self, printer_id: str) -> list[dict[str, Any]]:
+        """The printer's G-code files, newest first."""
+        files = await self.client(printer_id).files_list()
+        return sorted(files, key=lambda f: f.get("modified", 0), reverse=True)
+
+    async def delete_file(self, printer_id: str, path: str) -> None:
+        """Delete a G-code file, unless it is the one being printed."""
+        printer = self._get(printer_id)
+        stats = printer.live.status.get("print_stats", {})
+        if stats.get("filename") == path and stats.get("state") in ("printing", "paused"):
+            raise ActionRejected(
+                f"{printer_id} is printing '{path}'. Cancel the print before deleting the file.",
+                code="file_in_use",
+            )
+        await self.client(printer_id).delete_file(path)
+        self._announce(printer_id, "delete_file", f"Deleted {path}.")
+
+    async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
+        """Moonraker's metadata of one file."""
+        return await self.client(printer_id).file_metadata(filename)
+
+    def _announce(self, printer_id: str, action: str, message: str) -> None:
+        event = {"type": "action", "printer": printer_id, "action": action, "ok": True}
+        self.hub.event({**event, "message": message})
+
+    async def _file_meta_for(
+        self, printer: _Printer, action: str, params: Mapping[str, Any] | None
+    ) -> dict[str, Any] | None:
+        filename = (params or {}).get("filename")
+        if action != "start" or not isinstance(filename, str) or not filename:
+            return None
+        if printer.client is None or printer.live.connection != "online":
+            return None  # validation reports the connection problem
+        try:
+            return await printer.client.file_metadata(filename)
+        except MoonrakerRpcError as exc:
+            if exc.code == 404:
+                raise InvalidInput(
+                    f"{printer.config.id}: no file '{filename}' on the printer. "
+                    "Upload it first or pick one from the file list."
+                ) from exc
+            raise
+
+    def _get(self, printer_id: str) -> _Printer:
+        printer = self._printers.get(printer_id)
+        if printer is None:
+            raise UnknownPrinter(printer_id)
+        return printer
+
+
+def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
+    return (old.moonraker_url, old.api_key, old.enabled) != (
+        new.moonraker_url,
+        new.api_key,
+        new.enabled,
+    )
+
+
+def _require_online(printer: _Printer) -> None:
+    live = printer.live
+    pid = printer.config.id
+    if printer.client is None:
+        raise ActionRejected(
+            f"{pid} is disabled. Enable it in its settings first.", code="disabled"
+        )
+    if live.connection == "auth_failed":
+        raise PrinterAuthFailed(
+            f"{pid}: Moonraker refused the API key ({live.connection_error}). "
+            "Fix the printer's api_key."
+        )
+    if live.connection != "online":
+        raise PrinterUnreachable(
+            f"{pid} is {live.connection}: {live.connection_error or 'not connected yet'}. "
+            "KyberCore reconnects by itself; retry when it is online."
+        )
