@@ -6,11 +6,14 @@ import pytest
 
 from kybercore.api.errors import error_status
 from kybercore.errors import (
+    AccessDenied,
     ActionRejected,
     ConfigError,
+    FileNotFound,
     InvalidInput,
     KlippyNotReady,
     KyberCoreError,
+    LaunchError,
     MoonrakerRpcError,
     PrinterAuthFailed,
     PrinterTimeout,
@@ -32,6 +35,10 @@ from kybercore.errors import (
         (PrinterTimeout("slow"), 504, "printer_timeout"),
         (PrinterUnreachable("down"), 503, "printer_unreachable"),
         (ConfigError("broken"), 500, "config_error"),
+        (LaunchError("port in use"), 500, "launch_error"),
+        (FileNotFound("no such file"), 404, "not_found"),
+        (AccessDenied("who?", code="unauthorized"), 401, "unauthorized"),
+        (AccessDenied("not you", code="forbidden"), 403, "forbidden"),
         (KyberCoreError("other"), 500, "error"),
     ],
 )
@@ -43,3 +50,10 @@ def test_messages_name_the_printer_and_what_to_do() -> None:
     error = PrinterUnreachable("connection refused", printer="voron-1")
     assert str(error) == "voron-1: connection refused"
     assert "kybercore printers list" in UnknownPrinter("nope").message
+
+
+def test_reasons_are_given_at_construction() -> None:
+    reason = {"code": "c", "level": "block", "en": "no", "es": "no"}
+    assert InvalidInput("bad", reasons=[reason]).reasons == (reason,)
+    assert ActionRejected("no", code="x", reasons=[reason]).reasons == (reason,)
+    assert PrinterUnreachable("down", printer="p", reasons=[reason]).reasons == (reason,)

@@ -115,7 +115,7 @@ async def test_junk_frames_are_ignored_without_dropping_the_session(
         # An error whose code is not a number is still a typed error, not a dead reader.
         with pytest.raises(MoonrakerRpcError) as error:
             await session.call("printer.gcode.script", {"script": "G28"})
-        assert error.value.code == -1
+        assert error.value.rpc_code == -1
         await asyncio.sleep(0.3)
         assert session.running
         assert session.connection == "online"

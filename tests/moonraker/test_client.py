@@ -77,7 +77,7 @@ async def test_file_upload_list_metadata_download_delete(client: MoonrakerClient
     assert name not in [f["path"] for f in await client.files_list()]
     with pytest.raises(MoonrakerRpcError) as missing:
         await client.file_metadata("never-uploaded.gcode")
-    assert missing.value.code == 404
+    assert missing.value.rpc_code == 404
 
 
 async def test_print_start_pause_resume_cancel_and_history(client: MoonrakerClient) -> None:

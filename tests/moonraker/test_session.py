@@ -104,7 +104,7 @@ async def test_rpc_error_is_typed(
     assert "Metadata not available" in error.value.detail
     with pytest.raises(MoonrakerRpcError) as unknown:
         await client.call("server.no_such_method")
-    assert unknown.value.code == -32601
+    assert unknown.value.rpc_code == -32601
 
 
 async def test_klippy_shutdown_keeps_the_socket_and_ready_resubscribes(

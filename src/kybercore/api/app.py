@@ -24,7 +24,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
-from kybercore.api.errors import error_status
+from kybercore.api.errors import error_response, error_status, kybercore_error_response
 from kybercore.api.models import (
     ActionName,
     ActionRequest,
@@ -41,9 +41,7 @@ from kybercore.api.models import (
 )
 from kybercore.api.security import (
     Access,
-    AccessDenied,
     GuardMiddleware,
-    access_denied_handler,
     add_session_routes,
     require,
     websocket_identity,
@@ -103,7 +101,6 @@ def create_app(
     )
     app.state.access = access or Access("open", None)
     app.add_middleware(GuardMiddleware, max_body=MAX_UPLOAD_BYTES)
-    app.add_exception_handler(AccessDenied, access_denied_handler())
     app.add_exception_handler(KyberCoreError, _kybercore_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
@@ -121,11 +118,15 @@ def _service(request: Request | WebSocket) -> FleetService:
 
 
 def _outcome(outcome: ActionOutcome) -> dict[str, Any]:
+    if outcome.error is not None:
+        status = error_status(outcome.error)[0]
+    else:
+        status = 201 if outcome.action == "upload" else 200
     return {
         "printer_id": outcome.printer_id,
         "action": outcome.action,
         "ok": outcome.ok,
-        "status": outcome.status,
+        "status": status,
         "code": outcome.code,
         "message": outcome.message,
         "reasons": outcome.reasons,
@@ -409,14 +410,8 @@ def _safe_path(path: str) -> str:
     return path
 
 
-def _error(status: int, code: str, message: str, reasons: Any = ()) -> Response:
-    body = {"error": {"code": code, "message": message, "reasons": list(reasons)}}
-    return ORJSONResponse(body, status_code=status)
-
-
 async def _kybercore_error(_request: Request, exc: KyberCoreError) -> Response:
-    status, code = error_status(exc)
-    return _error(status, code, exc.message, exc.reasons)
+    return kybercore_error_response(exc)
 
 
 # Spanish for the validation errors people meet in forms; anything else gets the generic one.
@@ -445,24 +440,17 @@ async def _validation_error(_request: Request, exc: RequestValidationError) -> R
         spanish = _ES_FIELD_ERRORS.get(kind, f"El valor no es válido ({message}).")
         fields.append({"field": where, "en": message, "es": spanish})
     summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
-    body = {
-        "error": {
-            "code": "invalid_input",
-            "message": f"Invalid request. {summary}",
-            "reasons": [],
-            "fields": fields,
-        }
-    }
-    return ORJSONResponse(body, status_code=422)
+    return error_response(422, "invalid_input", f"Invalid request. {summary}", fields=fields)
 
 
 async def _http_error(_request: Request, exc: StarletteHTTPException) -> Response:
     if exc.status_code == 400:
         # A body that does not parse (bad JSON, bad multipart) is invalid input like any other.
-        return _error(422, "invalid_input", f"Invalid request: {exc.detail}.")
-    return _error(exc.status_code, "http_error", str(exc.detail))
+        return error_response(422, "invalid_input", f"Invalid request: {exc.detail}.")
+    return error_response(exc.status_code, "http_error", str(exc.detail))
 
 
 async def _unexpected_error(_request: Request, exc: Exception) -> Response:
     log.error("unexpected error", exc_info=exc)
-    return _error(500, "internal", "Internal error in KyberCore; the server log has details.")
+    message = "Internal error in KyberCore; the server log has details."
+    return error_response(500, "internal", message)

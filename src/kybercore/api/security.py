@@ -11,7 +11,6 @@ browser from being turned against the printers.
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
 from typing import Any, Final, Literal
 from urllib.parse import urlsplit
 
@@ -21,6 +20,8 @@ from pydantic import BaseModel, Field
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from kybercore.api.auth import COOKIE, OPEN_ACCESS, Identity, Role, TokenStore
+from kybercore.api.errors import error_response
+from kybercore.errors import AccessDenied
 
 SAFE_METHODS: Final = frozenset({"GET", "HEAD", "OPTIONS"})
 SECURITY_HEADERS: Final = {
@@ -56,16 +57,6 @@ class Access:
         return self.store.identify(token)
 
 
-class AccessDenied(Exception):
-    """401 (who are you?) or 403 (not allowed), answered as the API's error shape."""
-
-    def __init__(self, status: int, code: str, message: str) -> None:
-        super().__init__(message)
-        self.status = status
-        self.code = code
-        self.message = message
-
-
 def require(role: Role) -> Any:
     """A FastAPI dependency: the caller's identity, which must hold at least ``role``."""
 
@@ -74,18 +65,16 @@ def require(role: Role) -> Any:
         identity = access.identify(request.headers, request.cookies)
         if identity is None:
             raise AccessDenied(
-                401,
-                "unauthorized",
                 "Log in with a KyberCore token (POST /api/session, or send "
                 "'Authorization: Bearer <token>'). An admin creates tokens with "
                 "`kybercore tokens create`.",
+                code="unauthorized",
             )
         if not identity.may(role):
             raise AccessDenied(
-                403,
-                "forbidden",
                 f"Your token ({identity.name}, {identity.role}) may not do this: it needs "
                 f"the {role} role. Ask an admin for a token with that role.",
+                code="forbidden",
             )
         return identity
 
@@ -141,7 +130,7 @@ def add_session_routes(app: FastAPI) -> None:
         access: Access = request.app.state.access
         identity = access.identify({"authorization": f"Bearer {body.token}"}, {})
         if identity is None:
-            raise AccessDenied(401, "unauthorized", "That token is not valid. Check it and retry.")
+            raise AccessDenied("That token is not valid. Check it and retry.", code="unauthorized")
         answer = JSONResponse({"access": access.mode, "name": identity.name, "role": identity.role})
         if access.mode == "tokens":
             answer.set_cookie(
@@ -209,16 +198,4 @@ class GuardMiddleware:
 
 
 def _refuse(status: int, code: str, message: str) -> Response:
-    body = {"error": {"code": code, "message": message, "reasons": []}}
-    return JSONResponse(body, status_code=status, headers=SECURITY_HEADERS)
-
-
-def access_denied_handler() -> Callable[[Request, Exception], Awaitable[Response]]:
-    """The exception handler that answers AccessDenied in the API's error shape."""
-
-    async def handle(_request: Request, exc: Exception) -> Response:
-        assert isinstance(exc, AccessDenied)
-        body = {"error": {"code": exc.code, "message": exc.message, "reasons": []}}
-        return JSONResponse(body, status_code=exc.status)
-
-    return handle
+    return error_response(status, code, message, headers=SECURITY_HEADERS)

@@ -11,7 +11,6 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from kybercore.api.errors import error_status
 from kybercore.core.validation import Reason, Verdict
 from kybercore.errors import (
     ActionRejected,
@@ -25,15 +24,23 @@ from kybercore.moonraker.client import MoonrakerClient
 
 @dataclass
 class ActionOutcome:
-    """What happened when an action ran on one printer."""
+    """What happened when an action ran on one printer: done, or the error that stopped it."""
 
     printer_id: str
     action: str
-    ok: bool
-    status: int
     message: str
-    code: str = "ok"
+    error: KyberCoreError | None = None
     reasons: list[dict[str, str]] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when the action was done."""
+        return self.error is None
+
+    @property
+    def code(self) -> str:
+        """``ok``, or the error's stable code."""
+        return "ok" if self.error is None else self.error.code
 
 
 def reason_dict(reason: Reason) -> dict[str, str]:
@@ -54,39 +61,32 @@ def raise_if_blocked(verdict: Verdict, printer_id: str) -> None:
         return
     message = f"{printer_id}: " + " ".join(r.en for r in blocking)
     category = verdict.blocking_category
-    error: KyberCoreError
+    reasons = [reason_dict(r) for r in verdict.reasons]
     if category == "connection":
         auth = any(r.code == "printer_auth_failed" for r in blocking)
-        error = PrinterAuthFailed(message) if auth else PrinterUnreachable(message)
-    elif category in ("limit", "compatibility"):
-        error = InvalidInput(message)
-    else:
-        error = ActionRejected(message, code=blocking[0].code)
-    error.reasons = tuple(reason_dict(r) for r in verdict.reasons)
-    raise error
+        raise (PrinterAuthFailed if auth else PrinterUnreachable)(message, reasons=reasons)
+    if category in ("limit", "compatibility"):
+        raise InvalidInput(message, reasons=reasons)
+    raise ActionRejected(message, code=blocking[0].code, reasons=reasons)
 
 
 def require_confirmation(verdict: Verdict, confirm: bool) -> list[dict[str, str]]:
     """The verdict's warnings; refused unless the user confirmed them."""
     warnings = [reason_dict(r) for r in verdict.reasons if r.level == "warn"]
     if warnings and not confirm:
-        error = ActionRejected(
+        raise ActionRejected(
             "This action needs confirmation: "
             + " ".join(w["en"] for w in warnings)
             + " Send it again with confirm=true to go ahead.",
             code="confirmation_required",
+            reasons=warnings,
         )
-        error.reasons = tuple(warnings)
-        raise error
     return warnings
 
 
 def failed_outcome(printer_id: str, action: str, exc: KyberCoreError) -> ActionOutcome:
     """The outcome of an action that raised ``exc``."""
-    status, code = error_status(exc)
-    return ActionOutcome(
-        printer_id, action, False, status, exc.message, code=code, reasons=list(exc.reasons)
-    )
+    return ActionOutcome(printer_id, action, exc.message, exc, list(exc.reasons))
 
 
 async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any]) -> None:

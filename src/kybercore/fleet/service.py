@@ -27,7 +27,7 @@ from kybercore.core.view import LivePrinter, View, detect_capabilities, facts, f
 from kybercore.errors import (
     ActionRejected,
     ConfigError,
-    InvalidInput,
+    FileNotFound,
     KyberCoreError,
     MoonrakerRpcError,
     PrinterAuthFailed,
@@ -347,7 +347,7 @@ class FleetService:
         await execute(self.client(printer_id), action, params)
         message = done_message(action, params)
         self._announce(printer_id, action, message)
-        return ActionOutcome(printer_id, action, True, 200, message, reasons=warnings)
+        return ActionOutcome(printer_id, action, message, reasons=warnings)
 
     async def act_many(
         self,
@@ -387,7 +387,7 @@ class FleetService:
             )
             raise_if_blocked(verdict, printer_id)
         await client.upload(filename, content)
-        outcome = ActionOutcome(printer_id, "upload", True, 201, f"Uploaded {filename}.")
+        outcome = ActionOutcome(printer_id, "upload", f"Uploaded {filename}.")
         self._announce(printer_id, "upload", outcome.message)
         if start:
             started = await self.act(printer_id, "start", {"filename": filename}, confirm=confirm)
@@ -431,8 +431,8 @@ class FleetService:
         try:
             return await printer.client.file_metadata(filename)
         except MoonrakerRpcError as exc:
-            if exc.code == 404:
-                raise InvalidInput(
+            if exc.rpc_code == 404:
+                raise FileNotFound(
                     f"{printer.config.id}: no file '{filename}' on the printer. "
                     "Upload it first or pick one from the file list."
                 ) from exc

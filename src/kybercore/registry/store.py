@@ -184,9 +184,9 @@ class PrinterRegistry:
         def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
             taken = {p.id for p in printers}
             if new.id is not None and new.id in taken:
-                error = InvalidInput(
+                english = (
                     f"A printer with id '{new.id}' already exists. Choose another id, or "
-                    f"edit the existing printer."
+                    "edit the existing printer."
                 )
                 # The dashboard shows reasons in its language; this one has no other source.
                 spanish = (
@@ -194,8 +194,7 @@ class PrinterRegistry:
                     "la impresora existente."
                 )
                 reason = {"code": "id_taken", "level": "block", "category": "input"}
-                error.reasons = ({**reason, "en": error.message, "es": spanish},)
-                raise error
+                raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
             printer = new.to_config(new.id or _free_id(slugify(new.name), taken))
             printers.append(printer)
             return printer
