@@ -17,12 +17,11 @@ from typing import Any
 
 import pytest
 
+from kybercore.core.messages import MESSAGES, Reason
 from kybercore.core.validation import (
     ACTIONS,
     MAX_SCRIPT_BYTES,
-    MESSAGES,
     PrinterFacts,
-    Reason,
     Verdict,
     allowed_actions,
     filament_types,

@@ -20,7 +20,8 @@ import httpx
 import pytest
 from pydantic import SecretStr
 
-from kybercore.core.validation import PrinterFacts, Reason, Verdict, validate
+from kybercore.core.messages import Reason
+from kybercore.core.validation import PrinterFacts, Verdict, validate
 from kybercore.fleet.advisor import (
     SYSTEM_PROMPT,
     AdvisorConfig,

@@ -11,12 +11,13 @@ HEATER=extruder TARGET=200``).
 
 from __future__ import annotations
 
-import math
 import re
 import shlex
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
+
+from kybercore.core.numbers import finite_number
 
 Heater = Literal["extruder", "bed"]
 
@@ -113,7 +114,7 @@ def gcode_temperatures(script: str) -> list[TemperatureRequest]:
             elif target_heater == "heater_bed":
                 heater = "bed"
             value = command.params.get("TARGET")
-        target = _to_float(value)
+        target = finite_number(value)
         if heater is not None and target is not None:
             found.append(TemperatureRequest(command.line, heater, target, command.text))
     return found
@@ -160,7 +161,7 @@ def first_move_outside(
                 tracked[i] = False
         elif name in ("G0", "G1", "G2", "G3"):
             for i, axis in enumerate(_AXES):
-                value = _to_float(command.params.get(axis))
+                value = finite_number(command.params.get(axis))
                 if value is None:
                     continue
                 lo, hi = where[i]
@@ -178,12 +179,3 @@ def first_move_outside(
                     where[i] = (low[i], high[i])
     return None
 
-
-def _to_float(value: str | None) -> float | None:
-    if value is None:
-        return None
-    try:
-        number = float(value)
-    except ValueError:
-        return None
-    return number if math.isfinite(number) else None

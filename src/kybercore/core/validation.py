@@ -5,7 +5,7 @@
 name ``force`` give way to it). Each ``Reason`` has a stable snake_case code, a category the
 fleet service turns into an HTTP status (connection→503, state→409, limit and
 compatibility→422) and a message in English and Spanish saying what is wrong and what to do.
-All codes and messages are in ``MESSAGES`` below.
+All codes and messages are in :mod:`kybercore.core.messages`.
 
 Why each file check is a block or a warning:
 
@@ -26,16 +26,14 @@ checked for what can be read from it; see :mod:`kybercore.core.gcode`.
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
-from typing import Any, Final, Literal
+from typing import Any, Final
 
 from kybercore.core.gcode import command_names, first_move_outside, gcode_temperatures
-
-Level = Literal["ok", "warn", "block"]
-Category = Literal["state", "limit", "compatibility", "connection", "advisor"]
+from kybercore.core.messages import Category, Level, Reason, reason
+from kybercore.core.numbers import finite_number
 
 ACTIONS: Final = (
     "start", "pause", "resume", "cancel", "emergency_stop", "firmware_restart", "restart",
@@ -54,185 +52,6 @@ _GCODE_WHEN_DOWN: Final = frozenset({"RESTART", "FIRMWARE_RESTART", "STATUS", "H
 _GCODE_RESTARTS: Final = ("SAVE_CONFIG", "FIRMWARE_RESTART", "RESTART")
 _BUSY: Final = ("printing", "paused")
 
-_FORCE_EN: Final = "Cancel the print first, or repeat with force=true if you accept losing it."
-_FORCE_ES: Final = (
-    "Cancele antes la impresión o repita la acción con force=true si acepta perderla."
-)
-
-# code: (level, category, English, Spanish). Placeholders are filled by ``_reason``; the
-# fleet service and the UI rely on the codes, so they never change meaning once released.
-MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
-    "unknown_action": ("block", "limit",
-        "Unknown action '{action}'. Valid actions: {valid}.",
-        "Acción desconocida «{action}». Acciones válidas: {valid}."),
-    "printer_offline": ("block", "connection",
-        "The printer is offline: KyberCore cannot reach its Moonraker. Check that it is "
-        "powered on and on the network; KyberCore reconnects by itself.",
-        "La impresora está desconectada: KyberCore no puede comunicarse con su Moonraker. "
-        "Compruebe que esté encendida y conectada a la red; KyberCore se reconectará solo."),
-    "printer_disabled": ("block", "state",
-        "The printer is disabled in KyberCore. Enable it in its settings first.",
-        "La impresora está desactivada en KyberCore. Actívela primero en su configuración."),
-    "printer_connecting": ("block", "connection",
-        "KyberCore is still connecting to this printer. Wait a few seconds and try again.",
-        "KyberCore todavía se está conectando a esta impresora. Espere unos segundos y "
-        "vuelva a intentarlo."),
-    "printer_auth_failed": ("block", "connection",
-        "Moonraker refused KyberCore's API key. Set the right key for this printer in "
-        "printers.json or with `kybercore printers edit`.",
-        "Moonraker ha rechazado la clave API de KyberCore. Configure la clave correcta de "
-        "esta impresora en printers.json o con `kybercore printers edit`."),
-    "klippy_shutdown": ("block", "state",
-        "Klipper is shut down. Only a firmware restart or a restart is possible: find the "
-        "cause in the console, fix it, then restart the firmware.",
-        "Klipper está detenido por un fallo (shutdown). Solo se puede reiniciar el firmware "
-        "o Klipper: busque la causa en la consola, corríjala y reinicie el firmware."),
-    "klippy_error": ("block", "state",
-        "Klipper reported an error, often in its configuration. Only a firmware restart or a "
-        "restart is possible: fix the cause shown in the console, then restart.",
-        "Klipper ha informado de un error, a menudo de configuración. Solo se puede reiniciar "
-        "el firmware o Klipper: corrija la causa que muestra la consola y reinicie."),
-    "klippy_startup": ("block", "state",
-        "Klipper is starting up. Wait a few seconds until it is ready and try again.",
-        "Klipper se está iniciando. Espere unos segundos a que esté listo y vuelva a "
-        "intentarlo."),
-    "klippy_disconnected": ("block", "state",
-        "Moonraker answers but Klipper is not connected to it. Wait for Klipper to start; if "
-        "it does not, check the Klipper service on the printer's host.",
-        "Moonraker responde, pero Klipper no está conectado. Espere a que Klipper arranque; "
-        "si no lo hace, revise el servicio de Klipper en el equipo de la impresora."),
-    "print_in_progress": ("block", "state",
-        "A print is already running or paused on this printer. Wait for it to finish or "
-        "cancel it before starting another.",
-        "Esta impresora ya tiene una impresión en curso o en pausa. Espere a que termine o "
-        "cancélela antes de iniciar otra."),
-    "pause_not_printing": ("block", "state",
-        "Nothing is printing, so there is nothing to pause.",
-        "No hay ninguna impresión en curso, así que no hay nada que pausar."),
-    "resume_not_paused": ("block", "state",
-        "The printer is not paused, so there is nothing to resume.",
-        "La impresora no está en pausa, así que no hay nada que reanudar."),
-    "cancel_no_print": ("block", "state",
-        "There is no running or paused print to cancel.",
-        "No hay ninguna impresión en curso ni en pausa que cancelar."),
-    "home_while_printing": ("block", "state",
-        "Homing now would ruin the current print. Wait for it to finish or cancel it first.",
-        "Hacer homing de los ejes ahora arruinaría la impresión actual. Espere a que termine "
-        "o cancélela antes."),
-    "restart_while_printing": ("block", "state",
-        "{doing_en} now would abort the running or paused print. " + _FORCE_EN,
-        "{doing_es} ahora abortaría la impresión en curso o en pausa. " + _FORCE_ES),
-    "gcode_restart_while_printing": ("block", "state",
-        "Sending {commands} now would abort the running or paused print. " + _FORCE_EN,
-        "Enviar {commands} ahora abortaría la impresión en curso o en pausa. " + _FORCE_ES),
-    "gcode_home_while_printing": ("block", "state",
-        "G28 now would ruin the running or paused print. " + _FORCE_EN,
-        "G28 ahora arruinaría la impresión en curso o en pausa. " + _FORCE_ES),
-    "forced_during_print": ("warn", "state",
-        "Forced during a print: the print will be lost.",
-        "Acción forzada durante una impresión: la impresión se perderá."),
-    "filename_missing": ("block", "limit",
-        "Say which file to use (parameter 'filename').",
-        "Indique qué archivo usar (parámetro «filename»)."),
-    "file_metadata_missing": ("warn", "compatibility",
-        "KyberCore has no metadata for this file, so height, nozzle, filament and "
-        "temperatures were not checked. Confirm only if you know it suits this printer.",
-        "KyberCore no tiene metadatos de este archivo, así que no se han comprobado altura, "
-        "boquilla, filamento ni temperaturas. Confirme solo si sabe que es adecuado para esta "
-        "impresora."),
-    "file_too_tall": ("block", "compatibility",
-        "The part is {height} mm tall but this printer's Z travel is {z} mm. Send it to a "
-        "taller printer or re-slice it smaller.",
-        "La pieza mide {height} mm de alto, pero el recorrido en Z de esta impresora es de "
-        "{z} mm. Envíela a una impresora más alta o vuelva a laminarla más pequeña."),
-    "nozzle_mismatch": ("block", "compatibility",
-        "The file was sliced for a {file} mm nozzle but this printer has {ours} mm. Re-slice "
-        "it for {ours} mm or send it to a printer with a {file} mm nozzle.",
-        "El archivo se laminó para una boquilla de {file} mm, pero esta impresora tiene una "
-        "de {ours} mm. Vuelva a laminarlo para {ours} mm o envíelo a una impresora con "
-        "boquilla de {file} mm."),
-    "filament_mismatch": ("warn", "compatibility",
-        "The file was sliced for {file} but {loaded} is loaded. Load {file}, or confirm if "
-        "you know this filament prints with that profile.",
-        "El archivo se laminó para {file}, pero hay cargado {loaded}. Cargue {file} o "
-        "confirme si sabe que este filamento sirve con ese perfil."),
-    "file_extruder_temp_over_max": ("block", "limit",
-        "The file heats the nozzle to {temp} °C for the first layer, above this printer's "
-        "maximum of {limit} °C. Re-slice it with a lower temperature or use a printer rated "
-        "for it.",
-        "El archivo calienta la boquilla a {temp} °C en la primera capa, por encima del "
-        "máximo de esta impresora ({limit} °C). Vuelva a laminarlo con una temperatura más "
-        "baja o use una impresora preparada para ella."),
-    "file_bed_temp_over_max": ("block", "limit",
-        "The file heats the bed to {temp} °C for the first layer, above this printer's "
-        "maximum of {limit} °C. Re-slice it with a lower temperature or use a printer rated "
-        "for it.",
-        "El archivo calienta la cama a {temp} °C en la primera capa, por encima del máximo "
-        "de esta impresora ({limit} °C). Vuelva a laminarlo con una temperatura más baja o "
-        "use una impresora preparada para ella."),
-    "printer_model_mismatch": ("warn", "compatibility",
-        "The file was sliced for a '{file}' but this printer is a '{ours}'. Check that its "
-        "start G-code and bed size suit this printer, or re-slice it.",
-        "El archivo se laminó para «{file}», pero esta impresora es «{ours}». Compruebe que "
-        "su G-code inicial y el tamaño de la cama sirven para esta impresora o vuelva a "
-        "laminarlo."),
-    "temperature_missing": ("block", "limit",
-        "Give a target temperature for the extruder, the bed or both.",
-        "Indique una temperatura objetivo para el extrusor, la cama o ambos."),
-    "temperature_invalid": ("block", "limit",
-        "The {heater_en} temperature must be a number of 0 °C or more, not {value}.",
-        "La temperatura de {heater_es} debe ser un número igual o mayor que 0 °C, no {value}."),
-    "extruder_temp_over_max": ("block", "limit",
-        "{temp} °C is above this extruder's maximum of {limit} °C. Choose a lower temperature.",
-        "{temp} °C supera el máximo del extrusor de esta impresora ({limit} °C). Elija una "
-        "temperatura más baja."),
-    "bed_temp_over_max": ("block", "limit",
-        "{temp} °C is above this bed's maximum of {limit} °C. Choose a lower temperature.",
-        "{temp} °C supera el máximo de la cama de esta impresora ({limit} °C). Elija una "
-        "temperatura más baja."),
-    "home_axes_invalid": ("block", "limit",
-        "Cannot home axes {axes}: give any of x, y and z, for example 'xyz'.",
-        "No se puede hacer homing de los ejes {axes}: indique x, y o z, por ejemplo «xyz»."),
-    "gcode_empty": ("block", "limit",
-        "The G-code script is empty. Type at least one command.",
-        "El script de G-code está vacío. Escriba al menos un comando."),
-    "gcode_too_long": ("block", "limit",
-        "The script is {kib} KiB; the limit is 64 KiB. Upload long G-code as a file and "
-        "print it instead.",
-        "El script ocupa {kib} KiB y el límite es de 64 KiB. Suba el G-code largo como "
-        "archivo e imprímalo."),
-    "gcode_m112": ("block", "limit",
-        "M112 is not sent as G-code, where it would wait behind other commands. Use the "
-        "emergency stop action, which stops the printer at once.",
-        "M112 no se envía como G-code, donde esperaría detrás de otros comandos. Use la "
-        "acción de parada de emergencia, que detiene la impresora al instante."),
-    "gcode_extruder_temp_over_max": ("block", "limit",
-        "Line {line} sets the extruder to {temp} °C, above its maximum of {limit} °C. Use a "
-        "lower temperature.",
-        "La línea {line} pone el extrusor a {temp} °C, por encima de su máximo ({limit} °C). "
-        "Use una temperatura más baja."),
-    "gcode_bed_temp_over_max": ("block", "limit",
-        "Line {line} sets the bed to {temp} °C, above its maximum of {limit} °C. Use a lower "
-        "temperature.",
-        "La línea {line} pone la cama a {temp} °C, por encima de su máximo ({limit} °C). Use "
-        "una temperatura más baja."),
-    "gcode_move_outside_volume": ("warn", "limit",
-        "Line {line} moves {axis} outside this printer's range ({low}–{high} mm); Klipper "
-        "will refuse it and stop the script. Check the coordinates and the G90/G91 mode.",
-        "La línea {line} mueve {axis} fuera del rango de esta impresora ({low}–{high} mm); "
-        "Klipper la rechazará y detendrá el script. Revise las coordenadas y el modo G90/G91."),
-}  # fmt: skip
-
-
-@dataclass(frozen=True)
-class Reason:
-    """One finding: a stable code, how serious it is, and what to do, in two languages."""
-
-    code: str
-    level: Level
-    category: Category
-    en: str
-    es: str
 
 
 @dataclass(frozen=True)
@@ -305,7 +124,7 @@ def validate(
     """
     params = params or {}
     if action not in ACTIONS:
-        return Verdict.of([_reason("unknown_action", action=action, valid=", ".join(ACTIONS))])
+        return Verdict.of([reason("unknown_action", action=action, valid=", ".join(ACTIONS))])
     connection = _connection_reasons(printer)
     if connection:  # the rest of the facts are stale or unknown
         return Verdict.of(connection)
@@ -360,10 +179,10 @@ def _connection_reasons(printer: PrinterFacts) -> list[Reason]:
     if printer.connection == "online":
         return []
     if printer.connection == "disabled":
-        return [_reason("printer_disabled")]
+        return [reason("printer_disabled")]
     if printer.connection in ("connecting", "auth_failed"):
-        return [_reason(f"printer_{printer.connection}")]
-    return [_reason("printer_offline")]
+        return [reason(f"printer_{printer.connection}")]
+    return [reason("printer_offline")]
 
 
 def _state_reasons(
@@ -379,25 +198,25 @@ def _state_reasons(
             action == "gcode" and isinstance(script, str) and _only_when_down(script)
         ):
             return []
-        return [_reason(f"klippy_{klippy}")]
+        return [reason(f"klippy_{klippy}")]
     if klippy != "ready":
-        return [_reason("klippy_startup" if klippy == "startup" else "klippy_disconnected")]
+        return [reason("klippy_startup" if klippy == "startup" else "klippy_disconnected")]
     if action in ("start", "upload") and state in _BUSY:
-        return [_reason("print_in_progress")]
+        return [reason("print_in_progress")]
     if action == "pause" and state != "printing":
-        return [_reason("pause_not_printing")]
+        return [reason("pause_not_printing")]
     if action == "resume" and state != "paused":
-        return [_reason("resume_not_paused")]
+        return [reason("resume_not_paused")]
     if action == "cancel" and state not in _BUSY:
-        return [_reason("cancel_no_print")]
+        return [reason("cancel_no_print")]
     if action == "home" and state in _BUSY:
-        return [_reason("home_while_printing")]
+        return [reason("home_while_printing")]
     if action in ("restart", "firmware_restart") and state in _BUSY:
         if force:
-            return [_reason("forced_during_print")]
+            return [reason("forced_during_print")]
         doing = ("Restarting Klipper", "Reiniciar Klipper") if action == "restart" else (
             "Restarting the firmware", "Reiniciar el firmware")  # fmt: skip
-        return [_reason("restart_while_printing", doing_en=doing[0], doing_es=doing[1])]
+        return [reason("restart_while_printing", doing_en=doing[0], doing_es=doing[1])]
     return []
 
 
@@ -411,9 +230,9 @@ def _start_reasons(
     reasons: list[Reason] = []
     filename = params.get("filename")
     if not isinstance(filename, str) or not filename.strip():
-        reasons.append(_reason("filename_missing"))
+        reasons.append(reason("filename_missing"))
     if meta is None:
-        return [*reasons, _reason("file_metadata_missing")] if starts else reasons
+        return [*reasons, reason("file_metadata_missing")] if starts else reasons
     found = _file_reasons(printer, meta)
     if not starts:  # the file is only stored: say so now, block when it is started
         found = [replace(r, level="warn") if r.level == "block" else r for r in found]
@@ -423,26 +242,26 @@ def _start_reasons(
 def _file_reasons(printer: PrinterFacts, meta: Mapping[str, Any]) -> list[Reason]:
     """A sliced file (Moonraker's metadata) against one printer's capabilities."""
     reasons: list[Reason] = []
-    height, volume = _number(meta.get("object_height")), printer.build_volume
+    height, volume = finite_number(meta.get("object_height")), printer.build_volume
     if height is not None and volume is not None and height > volume[2] + 1e-6:
-        reasons.append(_reason("file_too_tall", height=height, z=volume[2]))
-    nozzle, ours = _number(meta.get("nozzle_diameter")), printer.nozzle_diameter
+        reasons.append(reason("file_too_tall", height=height, z=volume[2]))
+    nozzle, ours = finite_number(meta.get("nozzle_diameter")), printer.nozzle_diameter
     if nozzle is not None and ours is not None and abs(nozzle - ours) > _NOZZLE_TOLERANCE:
-        reasons.append(_reason("nozzle_mismatch", file=nozzle, ours=ours))
+        reasons.append(reason("nozzle_mismatch", file=nozzle, ours=ours))
     types, loaded = filament_types(meta.get("filament_type")), (printer.material or "").strip()
     if types and loaded and loaded.upper() not in types:
-        reasons.append(_reason("filament_mismatch", file=", ".join(types), loaded=loaded))
+        reasons.append(reason("filament_mismatch", file=", ".join(types), loaded=loaded))
     for code, key, limit in (
         ("file_extruder_temp_over_max", "first_layer_extr_temp", printer.max_extruder_temp),
         ("file_bed_temp_over_max", "first_layer_bed_temp", printer.max_bed_temp),
     ):
-        temp = _number(meta.get(key))
+        temp = finite_number(meta.get(key))
         if temp is not None and limit is not None and temp > limit:
-            reasons.append(_reason(code, temp=temp, limit=limit))
+            reasons.append(reason(code, temp=temp, limit=limit))
     sliced_for = meta.get("printer_model")
     if isinstance(sliced_for, str) and not _models_match(printer.model, sliced_for):
         reasons.append(
-            _reason("printer_model_mismatch", file=sliced_for.strip(), ours=printer.model.strip())
+            reason("printer_model_mismatch", file=sliced_for.strip(), ours=printer.model.strip())
         )
     return reasons
 
@@ -466,18 +285,18 @@ def _normal_model(name: str) -> str:
 def _temperature_param_reasons(printer: PrinterFacts, params: Mapping[str, Any]) -> list[Reason]:
     given = {h: params.get(h) for h in ("extruder", "bed") if params.get(h) is not None}
     if not given:
-        return [_reason("temperature_missing")]
+        return [reason("temperature_missing")]
     reasons: list[Reason] = []
     for heater, value in given.items():
-        temp = _number(value) if isinstance(value, int | float) else None
+        temp = finite_number(value) if isinstance(value, int | float) else None
         if temp is None or temp < 0:
             names = ("extruder", "el extrusor") if heater == "extruder" else ("bed", "la cama")
-            reasons.append(_reason("temperature_invalid", heater_en=names[0],
+            reasons.append(reason("temperature_invalid", heater_en=names[0],
                                    heater_es=names[1], value=repr(value)))  # fmt: skip
             continue
         limit = printer.max_extruder_temp if heater == "extruder" else printer.max_bed_temp
         if limit is not None and temp > limit:
-            reasons.append(_reason(f"{heater}_temp_over_max", temp=temp, limit=limit))
+            reasons.append(reason(f"{heater}_temp_over_max", temp=temp, limit=limit))
     return reasons
 
 
@@ -485,7 +304,7 @@ def _home_param_reasons(params: Mapping[str, Any]) -> list[Reason]:
     axes = params.get("axes")
     if axes is None or (isinstance(axes, str) and set(axes.lower()) <= set("xyz")):
         return []
-    return [_reason("home_axes_invalid", axes=repr(axes))]
+    return [reason("home_axes_invalid", axes=repr(axes))]
 
 
 # --- G-code scripts ------------------------------------------------------------------------
@@ -493,26 +312,26 @@ def _home_param_reasons(params: Mapping[str, Any]) -> list[Reason]:
 
 def _gcode_reasons(printer: PrinterFacts, script: Any, force: bool) -> list[Reason]:
     if isinstance(script, str) and len(script.encode()) > MAX_SCRIPT_BYTES:
-        return [_reason("gcode_too_long", kib=str(len(script.encode()) // 1024))]
+        return [reason("gcode_too_long", kib=str(len(script.encode()) // 1024))]
     names = command_names(script) if isinstance(script, str) else []
     if not isinstance(script, str) or not names:
-        return [_reason("gcode_empty")]
+        return [reason("gcode_empty")]
     reasons: list[Reason] = []
     if "M112" in names:
-        reasons.append(_reason("gcode_m112"))
+        reasons.append(reason("gcode_m112"))
     busy = printer.klippy_state == "ready" and printer.print_state in _BUSY
     restarts = " / ".join(n for n in _GCODE_RESTARTS if n in names)
     if busy and restarts:
-        reasons.append(_reason("forced_during_print") if force else
-                       _reason("gcode_restart_while_printing", commands=restarts))  # fmt: skip
+        reasons.append(reason("forced_during_print") if force else
+                       reason("gcode_restart_while_printing", commands=restarts))  # fmt: skip
     if busy and "G28" in names:
-        reasons.append(_reason("forced_during_print" if force else "gcode_home_while_printing"))
+        reasons.append(reason("forced_during_print" if force else "gcode_home_while_printing"))
     for request in gcode_temperatures(script):
         limit = printer.max_extruder_temp if request.heater == "extruder" else printer.max_bed_temp
         if limit is not None and request.target > limit:
             line = f"{request.line} ({request.text})"
             code = f"gcode_{request.heater}_temp_over_max"
-            reasons.append(_reason(code, line=line, temp=request.target, limit=limit))
+            reasons.append(reason(code, line=line, temp=request.target, limit=limit))
     if printer.build_volume is not None:
         low = printer.axis_minimum or (0.0, 0.0, 0.0)
         high = [max(s, lo + s) for lo, s in zip(low, printer.build_volume, strict=True)]
@@ -520,7 +339,7 @@ def _gcode_reasons(printer: PrinterFacts, script: Any, force: bool) -> list[Reas
         if move is not None:
             i = "XYZ".index(move.axis)
             line = f"{move.line} ({move.text})"
-            reasons.append(_reason("gcode_move_outside_volume", line=line, axis=move.axis,
+            reasons.append(reason("gcode_move_outside_volume", line=line, axis=move.axis,
                                    low=float(low[i]), high=float(high[i])))  # fmt: skip
     return reasons
 
@@ -531,38 +350,3 @@ def _only_when_down(script: str) -> bool:
 
 
 # --- helpers -------------------------------------------------------------------------------
-
-
-def _reason(code: str, **values: str | float) -> Reason:
-    """The catalogued reason ``code`` with its placeholders filled in for each language.
-
-    Numbers are written the way each language writes them; a value named ``*_en`` or
-    ``*_es`` is for that language's message only."""
-    level, category, en, es = MESSAGES[code]
-    return Reason(
-        code,
-        level,
-        category,
-        en.format(**{k: v if isinstance(v, str) else _en(v) for k, v in values.items()}),
-        es.format(**{k: v if isinstance(v, str) else _es(v) for k, v in values.items()}),
-    )
-
-
-def _number(value: Any) -> float | None:
-    """A finite float from a metadata value, or None (bools and junk are not numbers)."""
-    if isinstance(value, bool):
-        return None
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
-
-
-def _en(value: float) -> str:
-    return f"{value:g}"
-
-
-def _es(value: float) -> str:
-    # Spanish writes the decimal separator as a comma: 0,4 mm.
-    return f"{value:g}".replace(".", ",")

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from kybercore.core.numbers import finite_number
 from kybercore.core.validation import PrinterFacts, allowed_actions
 from kybercore.moonraker.objects import Status
 from kybercore.registry.models import PrinterConfig
@@ -38,9 +39,8 @@ class LivePrinter:
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
-    if type(value) is float:  # nearly always: the fast path of the hottest helper
-        return round(value, digits)
-    return round(float(value), digits) if isinstance(value, (int, float)) else None
+    number = finite_number(value)
+    return None if number is None else round(number, digits)
 
 
 # fuse() runs for every status update of every printer (4 Hz each); dumping the pydantic

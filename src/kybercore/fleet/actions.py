@@ -11,7 +11,8 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from kybercore.core.validation import Reason, Verdict
+from kybercore.core.messages import Reason
+from kybercore.core.validation import Verdict
 from kybercore.errors import (
     ActionRejected,
     InvalidInput,

@@ -32,7 +32,8 @@ from typing import Any, Final
 import httpx
 from pydantic import SecretStr
 
-from kybercore.core.validation import PrinterFacts, Reason, Verdict
+from kybercore.core.messages import Reason
+from kybercore.core.validation import PrinterFacts, Verdict
 
 log = logging.getLogger(__name__)
 
