@@ -18,7 +18,7 @@ from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry, write_printers
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import KyberCoreServer, wait_for
-from tests.test_advisor import FakeChatCompletionsServer
+from tests.fleet.test_advisor import FakeChatCompletionsServer
 
 pytestmark = pytest.mark.integration
 

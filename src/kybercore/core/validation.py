@@ -125,7 +125,7 @@ def validate(
     params = params or {}
     if action not in ACTIONS:
         return Verdict.of([reason("unknown_action", action=action, valid=", ".join(ACTIONS))])
-    connection = _connection_reasons(printer)
+    connection = connection_reasons(printer)
     if connection:  # the rest of the facts are stale or unknown
         return Verdict.of(connection)
     reasons = _state_reasons(action, printer, params, force)
@@ -146,7 +146,7 @@ def allowed_actions(printer: PrinterFacts) -> dict[str, bool]:
     Files, parameters and ``force`` are unknown here, so ``False`` means "blocked without
     force" and ``True`` still leaves room for a file or parameter check to block later.
     """
-    if _connection_reasons(printer):
+    if connection_reasons(printer):
         return dict.fromkeys(ACTIONS, False)
     return {
         action: not any(r.level == "block" for r in _state_reasons(action, printer, {}, False))
@@ -175,7 +175,8 @@ def filament_types(value: Any) -> tuple[str, ...]:
 # --- connection and state ----------------------------------------------------------------
 
 
-def _connection_reasons(printer: PrinterFacts) -> list[Reason]:
+def connection_reasons(printer: PrinterFacts) -> list[Reason]:
+    """Why nothing can be sent to the printer now (disabled, connecting, offline...)."""
     if printer.connection == "online":
         return []
     if printer.connection == "disabled":

@@ -10,30 +10,22 @@ reports a success that did not happen.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
-import logging
-import time
-from collections.abc import Awaitable, Mapping
-from dataclasses import dataclass, field
-from typing import Any, BinaryIO, Final
+from collections.abc import Mapping
+from typing import Any, BinaryIO
 
 import httpx
 import picows
 
 from kybercore.aio import cancel_and_wait
-from kybercore.core.validation import Verdict, validate
-from kybercore.core.view import LivePrinter, View, detect_capabilities, facts, fuse
+from kybercore.core.validation import Verdict, connection_reasons, validate
+from kybercore.core.view import View, facts, fuse
 from kybercore.errors import (
     ActionRejected,
     ConfigError,
     FileNotFound,
     KyberCoreError,
     MoonrakerRpcError,
-    PrinterAuthFailed,
-    PrinterError,
-    PrinterUnreachable,
-    UnknownPrinter,
 )
 from kybercore.fleet.actions import (
     ActionOutcome,
@@ -45,33 +37,11 @@ from kybercore.fleet.actions import (
 )
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
 from kybercore.fleet.hub import Hub
+from kybercore.fleet.sessions import FleetPrinter, Sessions
 from kybercore.moonraker.client import MoonrakerClient
-from kybercore.moonraker.events import (
-    ConnectionChanged,
-    KlippyChanged,
-    Notification,
-    SessionEvent,
-    StatusDelta,
-    StatusSnapshot,
-)
 from kybercore.moonraker.link import Connect
-from kybercore.moonraker.objects import apply_status
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
-
-log = logging.getLogger(__name__)
-
-LAST_SEEN_STEP: Final = 5.0
-
-# Settings read once from Klippy's configfile when printers.json does not give them.
-_DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
-
-
-@dataclass
-class _Printer:
-    config: PrinterConfig
-    client: MoonrakerClient | None
-    live: LivePrinter = field(default_factory=LivePrinter)
 
 
 class FleetService:
@@ -88,13 +58,12 @@ class FleetService:
     ) -> None:
         self.registry = registry
         self._http = http
-        self._connect = connect
         self._watch_interval = watch_interval
         self._advisor = advisor
-        self._printers: dict[str, _Printer] = {}
         self.hub = Hub(self._render)
+        self.sessions = Sessions(http, connect, self.hub)
         self._watcher: asyncio.Task[None] | None = None
-        self._background: set[asyncio.Task[Any]] = set()
+        self._freezer: asyncio.Task[None] | None = None
         self.config_error: str | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -102,8 +71,8 @@ class FleetService:
     async def start(self) -> None:
         """Read printers.json (refusing a broken file), connect to every printer."""
         printers = await asyncio.to_thread(self.registry.reload)
-        self._apply(printers)
-        self._spawn(self._freeze_when_connected())
+        self.sessions.apply(printers)
+        self._freezer = asyncio.create_task(self._freeze_when_connected())
         self.hub.start()
         self._watcher = asyncio.create_task(
             self.registry.watch(self._on_file_change, self._on_file_error, self._watch_interval),
@@ -115,7 +84,7 @@ class FleetService:
         of the garbage collector's reach: full collections then scan only what churns.
         Measured at 5,000 printers: the collector took 26 % of the CPU before."""
         for _ in range(limit):
-            live = [p.live.connection for p in self._printers.values()]
+            live = [p.live.connection for p in self.sessions.all()]
             if all(state in ("online", "disabled") for state in live):
                 break
             await asyncio.sleep(1.0)
@@ -125,11 +94,9 @@ class FleetService:
     async def stop(self) -> None:
         """Close every session and stop background work."""
         await cancel_and_wait(self._watcher)
-        for task in list(self._background):
-            task.cancel()
+        await cancel_and_wait(self._freezer)
         await self.hub.stop()
-        await asyncio.gather(*(self._close(p) for p in self._printers.values()))
-        self._printers.clear()
+        await self.sessions.close()
 
     # -- reading -----------------------------------------------------------------------
 
@@ -144,20 +111,21 @@ class FleetService:
 
     def view(self, printer_id: str) -> View:
         """One printer's view, as last published (like :meth:`views`)."""
-        printer = self._get(printer_id)
+        printer = self.sessions.get(printer_id)
         view = self.hub.view(printer_id)
         # Unpublished only when its first render failed: render here, to surface why.
         return view if view is not None else fuse(printer.config, printer.live)
 
     def config(self, printer_id: str) -> PrinterConfig:
         """A printer's configuration (with the API key: never send it to a client)."""
-        return self._get(printer_id).config
+        return self.sessions.get(printer_id).config
 
     def client(self, printer_id: str) -> MoonrakerClient:
         """The Moonraker client of an enabled, connected printer."""
-        printer = self._get(printer_id)
-        _require_online(printer)
-        assert printer.client is not None  # _require_online checked it
+        printer = self.sessions.get(printer_id)
+        connection = connection_reasons(facts(printer.config, printer.live))
+        raise_if_blocked(Verdict.of(connection), printer_id)
+        assert printer.client is not None  # only a disabled printer has none, refused above
         return printer.client
 
     # -- printers.json -----------------------------------------------------------------
@@ -165,150 +133,35 @@ class FleetService:
     async def add_printer(self, new: PrinterCreate) -> View:
         """Add a printer to printers.json and connect to it."""
         created = await asyncio.to_thread(self.registry.add, new)
-        self._apply(self.registry.printers)
+        self.sessions.apply(self.registry.printers)
         return self.view(created.id)
 
     async def update_printer(self, printer_id: str, patch: PrinterUpdate) -> View:
         """Edit a printer; its session restarts when the URL, key or enabled flag changed."""
-        self._get(printer_id)
+        self.sessions.get(printer_id)
         await asyncio.to_thread(self.registry.update, printer_id, patch)
-        self._apply(self.registry.printers)
+        self.sessions.apply(self.registry.printers)
         return self.view(printer_id)
 
     async def remove_printer(self, printer_id: str) -> None:
         """Remove a printer from printers.json and disconnect from it."""
-        self._get(printer_id)
+        self.sessions.get(printer_id)
         await asyncio.to_thread(self.registry.remove, printer_id)
-        self._apply(self.registry.printers)
+        self.sessions.apply(self.registry.printers)
 
     def _on_file_change(self, printers: list[PrinterConfig]) -> None:
         self.config_error = None
-        self._apply(printers)
+        self.sessions.apply(printers)
         self.hub.event({"type": "config", "ok": True, "message": "printers.json reloaded"})
 
     def _on_file_error(self, error: ConfigError) -> None:
         self.config_error = error.message
         self.hub.event({"type": "config", "ok": False, "message": error.message})
 
-    def _apply(self, printers: list[PrinterConfig]) -> None:
-        """Make the running sessions match ``printers`` (start, stop or restart them) and
-        publish the result at once, so the fleet list shows it when a request returns."""
-        wanted = {p.id: p for p in printers}
-        for printer_id in list(self._printers):
-            if printer_id not in wanted:
-                self._spawn(self._close(self._printers.pop(printer_id)))
-                self.hub.mark(printer_id)
-        for printer_id, config in wanted.items():
-            current = self._printers.get(printer_id)
-            if current is not None and not _needs_new_session(current.config, config):
-                current.config = config
-            else:
-                if current is not None:
-                    self._spawn(self._close(current))
-                self._printers[printer_id] = self._open(config)
-            self.hub.mark(printer_id)
-        self.hub.flush()
-
-    def _open(self, config: PrinterConfig) -> _Printer:
-        if not config.enabled:
-            return _Printer(config, None, LivePrinter(connection="disabled"))
-        printer = _Printer(config, None)
-        printer.client = MoonrakerClient(
-            config.moonraker_url,
-            self._http,
-            name=config.id,
-            api_key=config.api_key.get_secret_value() if config.api_key else None,
-            on_event=lambda event: self._on_event(printer, event),
-            connect=self._connect,
-        )
-        printer.client.start()
-        return printer
-
-    async def _close(self, printer: _Printer) -> None:
-        if printer.client is not None:
-            await printer.client.close()
-
     # -- live state --------------------------------------------------------------------
 
-    def _on_event(self, printer: _Printer, event: SessionEvent) -> None:
-        live = printer.live
-        heard_before, live.updated_at = live.updated_at, time.time()
-        pid = printer.config.id
-        if isinstance(event, StatusDelta):
-            apply_status(live.status, event.delta)  # the live state is ours alone
-            self._follow_file(printer)
-        elif isinstance(event, StatusSnapshot):
-            live.status = dict(event.status)
-            self._follow_file(printer)
-            self._spawn(self._detect_capabilities(printer))
-        elif isinstance(event, ConnectionChanged):
-            live.connection = event.connection
-            live.connection_error = event.detail
-            self.hub.event(
-                {
-                    "type": "connection",
-                    "printer": pid,
-                    "connection": event.connection,
-                    "message": event.detail,
-                }
-            )
-        elif isinstance(event, KlippyChanged):
-            live.klippy_state = event.state
-            live.klippy_message = event.message
-            self.hub.event(
-                {"type": "klippy", "printer": pid, "state": event.state, "message": event.message}
-            )
-            if event.state in ("shutdown", "error"):
-                self._spawn(self._read_klippy_message(printer))
-        elif isinstance(event, Notification):
-            if event.method == "notify_gcode_response" and event.params:
-                self.hub.console(pid, str(event.params[0]))
-            # Moonraker's 1 s process stats prove the printer is alive even when nothing
-            # changes; let `updated_at` show that, at most every LAST_SEEN_STEP seconds.
-            if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
-                return
-        self.hub.mark(pid)
-
-    def _follow_file(self, printer: _Printer) -> None:
-        """Fetch the metadata of a newly started file once (ETA, thumbnail)."""
-        filename = printer.live.status.get("print_stats", {}).get("filename") or ""
-        meta = printer.live.file_meta
-        if filename and (meta is None or meta.get("filename") != filename):
-            printer.live.file_meta = {"filename": filename}
-            self._spawn(self._load_file_meta(printer, filename))
-
-    async def _load_file_meta(self, printer: _Printer, filename: str) -> None:
-        if printer.client is None:
-            return
-        with contextlib.suppress(PrinterError):
-            meta = await printer.client.file_metadata(filename)
-            printer.live.file_meta = {**meta, "filename": filename}
-            self.hub.mark(printer.config.id)
-
-    async def _detect_capabilities(self, printer: _Printer) -> None:
-        if printer.client is None:
-            return
-        with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
-            status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
-            printer.live.detected = detect_capabilities(status["configfile"]["settings"])
-            self.hub.mark(printer.config.id)
-
-    async def _read_klippy_message(self, printer: _Printer) -> None:
-        if printer.client is None:
-            return
-        with contextlib.suppress(PrinterError, KeyError):
-            info = await printer.client.printer_info()
-            printer.live.klippy_message = str(info.get("state_message", ""))
-            self.hub.mark(printer.config.id)
-
     def _render(self, printer_id: str) -> View | None:
-        printer = self._printers.get(printer_id)
-        return None if printer is None else fuse(printer.config, printer.live)
-
-    def _spawn(self, work: Awaitable[Any]) -> None:
-        task = asyncio.ensure_future(work)
-        self._background.add(task)
-        task.add_done_callback(self._background.discard)
+        return self.sessions.render(printer_id)
 
     # -- actions -----------------------------------------------------------------------
 
@@ -321,7 +174,7 @@ class FleetService:
     ) -> Verdict:
         """What would happen: the rules (with the file's real metadata) and, when one is
         configured, the advisor's warnings. Nothing is sent to the printer."""
-        printer = self._get(printer_id)
+        printer = self.sessions.get(printer_id)
         meta = await self._file_meta_for(printer, action, params)
         printer_facts = facts(printer.config, printer.live)
         verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
@@ -381,7 +234,7 @@ class FleetService:
         client = self.client(printer_id)
         if start:
             # Refuse before sending the bytes when the printer cannot start anything now.
-            printer = self._get(printer_id)
+            printer = self.sessions.get(printer_id)
             verdict = validate(
                 "start", facts(printer.config, printer.live), params={"filename": filename}
             )
@@ -402,7 +255,7 @@ class FleetService:
 
     async def delete_file(self, printer_id: str, path: str) -> None:
         """Delete a G-code file, unless it is the one being printed."""
-        printer = self._get(printer_id)
+        printer = self.sessions.get(printer_id)
         stats = printer.live.status.get("print_stats", {})
         if stats.get("filename") == path and stats.get("state") in ("printing", "paused"):
             raise ActionRejected(
@@ -421,7 +274,7 @@ class FleetService:
         self.hub.event({**event, "message": message})
 
     async def _file_meta_for(
-        self, printer: _Printer, action: str, params: Mapping[str, Any] | None
+        self, printer: FleetPrinter, action: str, params: Mapping[str, Any] | None
     ) -> dict[str, Any] | None:
         filename = (params or {}).get("filename")
         if action != "start" or not isinstance(filename, str) or not filename:
@@ -438,35 +291,3 @@ class FleetService:
                 ) from exc
             raise
 
-    def _get(self, printer_id: str) -> _Printer:
-        printer = self._printers.get(printer_id)
-        if printer is None:
-            raise UnknownPrinter(printer_id)
-        return printer
-
-
-def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
-    return (old.moonraker_url, old.api_key, old.enabled) != (
-        new.moonraker_url,
-        new.api_key,
-        new.enabled,
-    )
-
-
-def _require_online(printer: _Printer) -> None:
-    live = printer.live
-    pid = printer.config.id
-    if printer.client is None:
-        raise ActionRejected(
-            f"{pid} is disabled. Enable it in its settings first.", code="disabled"
-        )
-    if live.connection == "auth_failed":
-        raise PrinterAuthFailed(
-            f"{pid}: Moonraker refused the API key ({live.connection_error}). "
-            "Fix the printer's api_key."
-        )
-    if live.connection != "online":
-        raise PrinterUnreachable(
-            f"{pid} is {live.connection}: {live.connection_error or 'not connected yet'}. "
-            "KyberCore reconnects by itself; retry when it is online."
-        )
