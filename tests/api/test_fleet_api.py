@@ -211,7 +211,7 @@ async def test_edit_printers_over_rest_and_cli_while_running(
         "-m",
         "kybercore",
         "printers",
-        "--file",
+        "--printers-file",
         str(kybercore_server.printers_file),
     ]
     subprocess.run(

@@ -23,7 +23,7 @@ def path(tmp_path: Path) -> Path:
 def run(path: Path, *args: str, stdin: str | None = None) -> Result:
     """Run the sub-app as `kybercore printers --file PATH ARGS...` on a wide terminal."""
     result = CliRunner().invoke(
-        printers_app, ["--file", str(path), *args], input=stdin, env={"COLUMNS": "200"}
+        printers_app, ["--printers-file", str(path), *args], input=stdin, env={"COLUMNS": "200"}
     )
     assert "Traceback" not in result.output
     assert result.exception is None or isinstance(result.exception, SystemExit)

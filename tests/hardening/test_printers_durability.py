@@ -169,7 +169,7 @@ def lone_server(tmp_path: Path) -> Iterator[KyberCoreServer]:
 
 
 def _cli(path: Path, *args: str) -> subprocess.Popen[bytes]:
-    command = [sys.executable, "-m", "kybercore", "printers", "--file", str(path), *args]
+    command = [sys.executable, "-m", "kybercore", "printers", "--printers-file", str(path), *args]
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
@@ -18,6 +17,7 @@ from pydantic import ValidationError
 from rich.table import Table
 from rich.text import Text
 
+from kybercore.cli.options import PrintersFile
 from kybercore.cli.output import console, done, fail
 from kybercore.errors import InvalidInput, KyberCoreError
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
@@ -43,15 +43,6 @@ _OPTION = {
 _FILE_KEY = "kybercore.printers_file"
 M = TypeVar("M", PrinterCreate, PrinterUpdate)
 
-FileOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--file",
-        envvar="KYBERCORE_PRINTERS",
-        help="printers.json to use (default: ./printers.json).",
-        show_default=False,
-    ),
-]
 ModelOpt = Annotated[str | None, typer.Option("--model", help="Printer model, e.g. 'Voron 2.4'.")]
 LocationOpt = Annotated[str | None, typer.Option("--location", help="Where the printer is.")]
 NotesOpt = Annotated[str | None, typer.Option("--notes", help="Free text for operators.")]
@@ -78,9 +69,9 @@ BedOpt = Annotated[
 
 
 @printers_app.callback()
-def _options(ctx: typer.Context, file: FileOpt = None) -> None:
+def _options(ctx: typer.Context, printers_file: PrintersFile = None) -> None:
     """List, add, edit and remove the printers in printers.json."""
-    ctx.meta[_FILE_KEY] = file
+    ctx.meta[_FILE_KEY] = printers_file
 
 
 @printers_app.command("list")

@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from kybercore.api.auth import ROLES, TokenStore, tokens_path_for
+from kybercore.cli.options import PrintersFile
 from kybercore.cli.output import console, fail
 from kybercore.errors import KyberCoreError
 from kybercore.registry.store import default_printers_path
@@ -18,16 +19,6 @@ tokens_app = typer.Typer(
     help="Create, list and revoke access tokens (roles: viewer, operator, admin).",
     no_args_is_help=True,
 )
-
-PrintersFile = Annotated[
-    Path | None,
-    typer.Option(
-        "--printers-file",
-        envvar="KYBERCORE_PRINTERS",
-        help="The fleet's printers.json; tokens.json lives beside it.",
-    ),
-]
-
 
 def _store(printers_file: Path | None) -> TokenStore:
     return TokenStore(tokens_path_for(printers_file or default_printers_path()))
