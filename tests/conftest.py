@@ -9,7 +9,7 @@ from typing import Any
 import httpx
 import pytest
 
-from kybercore.moonraker.client import new_http_client
+from kybercore.moonraker.http import new_http_client
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.sim.runtime import ensure_runtimes

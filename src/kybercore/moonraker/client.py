@@ -18,31 +18,30 @@ from typing import Any, BinaryIO, Final
 from urllib.parse import quote, urlsplit, urlunsplit
 
 import httpx
-import orjson
 import picows
 
 from kybercore import __version__
 from kybercore.errors import (
-    KlippyNotReady,
     MoonrakerRpcError,
-    PrinterAuthFailed,
     PrinterError,
     PrinterTimeout,
     PrinterUnreachable,
 )
 from kybercore.moonraker.events import EventCallback, SessionEvent
+from kybercore.moonraker.http import (
+    ACTION_TIMEOUT,
+    GCODE_TIMEOUT,
+    UPLOAD_TIMEOUT,
+    http_error,
+    json_body,
+    transport_problem,
+)
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import Status
 from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
 
-REQUEST_TIMEOUT: Final = httpx.Timeout(10.0, connect=3.0)
-# `/printer/gcode/script` answers only when the G-code has run: M109 or G28 take minutes.
-GCODE_TIMEOUT: Final = httpx.Timeout(600.0, connect=3.0)
-UPLOAD_TIMEOUT: Final = httpx.Timeout(300.0, connect=3.0)
-# Pause and cancel wait for the moves already queued (and a G28 in progress) to finish.
-ACTION_TIMEOUT: Final = httpx.Timeout(60.0, connect=3.0)
 # A slow answer is normal (G28, M109); a frozen Moonraker is not. While a request waits,
 # Moonraker is probed every PROBE_AFTER s (a ping over the live session, else a small HTTP
 # request); nothing back within PROBE_TIMEOUT s fails the request as unreachable (HTTP 503)
@@ -67,16 +66,6 @@ FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
 
 # Moonraker keeps one agent per name: two KyberCore processes on one printer must differ.
 AGENT_NAME: Final = f"KyberCore {socket.gethostname()}:{os.getpid()}"
-
-
-def new_http_client() -> httpx.AsyncClient:
-    """The one HTTP client a process shares across all its printers."""
-    # trust_env=False: printers live on the LAN; a desktop proxy setting must not apply.
-    return httpx.AsyncClient(
-        timeout=REQUEST_TIMEOUT,
-        trust_env=False,
-        limits=httpx.Limits(max_connections=1000, max_keepalive_connections=200),
-    )
 
 
 def websocket_url(base_url: str) -> str:
@@ -254,7 +243,7 @@ class MoonrakerClient:
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )
         # The one Moonraker endpoint whose answer is not wrapped in {"result": ...}.
-        return dict(_json(response, self.name))
+        return dict(json_body(response, self.name))
 
     async def delete_file(self, path: str, root: str = "gcodes") -> None:
         """Delete a file."""
@@ -284,7 +273,7 @@ class MoonrakerClient:
 
     async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
         """Send a request and unwrap Moonraker's ``{"result": ...}``."""
-        body = _json(await self._send(method, path, **kwargs), self.name)
+        body = json_body(await self._send(method, path, **kwargs), self.name)
         if not isinstance(body, dict) or "result" not in body:
             raise MoonrakerRpcError(
                 -1, f"unexpected answer to {method} {path}: no 'result'", printer=self.name
@@ -306,7 +295,7 @@ class MoonrakerClient:
                 printer=self.name,
             ) from exc
         except httpx.TransportError as exc:
-            problem = _transport_problem(self.base_url, exc)
+            problem = transport_problem(self.base_url, exc)
             raise PrinterUnreachable(problem, printer=self.name) from exc
         finally:
             if not request.done():
@@ -315,7 +304,7 @@ class MoonrakerClient:
                     await request
         if response.is_success:
             return response
-        raise _http_error(response, path, self.name)
+        raise http_error(response, path, self.name)
 
     async def _over_socket(
         self, method: str, params: Mapping[str, Any] | None, timeout: float = 10.0
@@ -378,54 +367,3 @@ def _ignore(_event: SessionEvent) -> None:
     """Default event sink for clients used for HTTP only."""
 
 
-def _json(response: httpx.Response, printer: str) -> Any:
-    try:
-        return orjson.loads(response.content)
-    except orjson.JSONDecodeError:
-        raise MoonrakerRpcError(
-            response.status_code,
-            f"{response.request.url.host} answered {response.request.url.path} with something "
-            "that is not JSON. Is the URL really a Moonraker server?",
-            printer=printer,
-        ) from None
-
-
-def _http_error(response: httpx.Response, path: str, printer: str) -> PrinterError:
-    status = response.status_code
-    try:
-        error = orjson.loads(response.content).get("error", {})
-        message = str(error.get("message", "")) if isinstance(error, dict) else str(error)
-    except (orjson.JSONDecodeError, AttributeError):
-        message = response.text[:200]
-    if status in (401, 403):
-        return PrinterAuthFailed(
-            f"Moonraker refused the request (HTTP {status}): the API key is missing or wrong. "
-            "Set the printer's api_key to the key from Moonraker's /access/api_key.",
-            printer=printer,
-        )
-    if path.startswith("/printer/") and (status == 404 or "klippy" in message.lower()):
-        # Klippy registers the /printer/* endpoints, so they 404 until it first connects;
-        # once known, they answer 503 "Klippy Host not connected" while it is away.
-        return KlippyNotReady(
-            "Klippy is not connected to Moonraker yet. Wait for it to start, or check "
-            "klippy.log on the printer.",
-            printer=printer,
-        )
-    return MoonrakerRpcError(status, message or response.reason_phrase, printer=printer)
-
-
-def _transport_problem(base_url: str, exc: httpx.TransportError) -> str:
-    causes = []
-    cause: BaseException | None = exc
-    while cause is not None:
-        causes.append(cause)
-        cause = cause.__cause__ or cause.__context__
-    lowered = " ".join(str(c) for c in causes).lower()
-    if any(isinstance(c, ConnectionRefusedError) for c in causes) or "refused" in lowered:
-        return f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
-    if "name or service not known" in lowered or "name resolution" in lowered:
-        return (
-            f"the host name in {base_url} cannot be resolved. Check the printer's URL "
-            "or use its IP address."
-        )
-    return f"cannot reach Moonraker at {base_url} ({exc or type(exc).__name__}). Retry later."
