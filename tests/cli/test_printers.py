@@ -20,10 +20,13 @@ def path(tmp_path: Path) -> Path:
     return tmp_path / "printers.json"
 
 
-def run(path: Path, *args: str, stdin: str | None = None) -> Result:
-    """Run the sub-app as `kybercore printers --file PATH ARGS...` on a wide terminal."""
+def run(path: Path, *args: str, stdin: str | None = None, columns: int = 200) -> Result:
+    """Run the sub-app as `kybercore printers --printers-file PATH ARGS...` (not a terminal)."""
     result = CliRunner().invoke(
-        printers_app, ["--printers-file", str(path), *args], input=stdin, env={"COLUMNS": "200"}
+        printers_app,
+        ["--printers-file", str(path), *args],
+        input=stdin,
+        env={"COLUMNS": str(columns)},
     )
     assert "Traceback" not in result.output
     assert result.exception is None or isinstance(result.exception, SystemExit)
@@ -97,6 +100,15 @@ def test_list_table_never_shows_the_key(path: Path) -> None:
     voron_row = next(line for line in result.stdout.splitlines() if "voron.lan" in line)
     assert " no " in voron_row
     assert " set " in voron_row
+
+
+def test_a_piped_list_is_never_cut_whatever_the_width(path: Path) -> None:
+    url = "http://printer-with-a-long-name.farm.example.com:7125"
+    assert run(path, "add", "Long", "--url", url, "--location", "Sala B").exit_code == 0
+    result = run(path, "list", columns=40)
+    assert result.exit_code == 0
+    assert url in result.stdout
+    assert "…" not in result.stdout
 
 
 def test_list_json_is_the_public_view(path: Path) -> None:

@@ -18,7 +18,7 @@ from rich.table import Table
 from rich.text import Text
 
 from kybercore.cli.options import PrintersFile
-from kybercore.cli.output import console, done, fail
+from kybercore.cli.output import done, fail, print_table
 from kybercore.errors import InvalidInput, KyberCoreError
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
@@ -99,7 +99,7 @@ def list_printers(
             "yes" if p.enabled else "no",
             "set" if p.api_key else "not set",
         )
-    console.print(table)
+    print_table(table)
 
 
 @printers_app.command("add")

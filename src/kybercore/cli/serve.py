@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from kybercore.cli.options import Host, Port, PrintersFile
-from kybercore.cli.output import console, fail
+from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
 from kybercore.registry.store import PrinterRegistry, default_printers_path, write_printers
 
@@ -206,7 +206,7 @@ def _print_fleet(stacks: list[PrinterStack]) -> None:
         table.add_column(column)
     for stack in stacks:
         table.add_row(stack.options.name, stack.url, str(stack.data_dir))
-    console.print(table)
+    print_table(table)
 
 
 def _wait_for_ctrl_c() -> None:

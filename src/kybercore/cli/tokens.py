@@ -11,7 +11,7 @@ from rich.table import Table
 
 from kybercore.api.auth import ROLES, TokenStore, tokens_path_for
 from kybercore.cli.options import PrintersFile
-from kybercore.cli.output import console, fail
+from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
 from kybercore.registry.store import default_printers_path
 
@@ -49,7 +49,7 @@ def list_tokens(printers_file: PrintersFile = None) -> None:
     for record in _store(printers_file).records():
         created = datetime.datetime.fromtimestamp(record.created).strftime("%Y-%m-%d %H:%M")
         table.add_row(record.id, record.name, record.role, created)
-    console.print(table)
+    print_table(table)
 
 
 @tokens_app.command("revoke")
