@@ -133,7 +133,7 @@ async def test_wrong_state_and_unknown_printer(api: httpx.AsyncClient) -> None:
     bad = await api.post("/api/printers/fleet-c/actions/set_temperature", json={"extruder": 999})
     assert bad.status_code == 422
     nothing = await api.post("/api/printers/fleet-c/actions/start", json={"filename": "nope.gcode"})
-    assert nothing.status_code == 422
+    assert nothing.status_code == 404  # a missing file, not a malformed request
     assert "Upload it first" in nothing.json()["error"]["message"]
 
 

@@ -7,15 +7,22 @@ Every error KyberCore answers has the same shape::
 ``code`` is the error's stable name (:attr:`KyberCoreError.code`), ``message`` says what
 to do, ``reasons`` are validation reasons (en/es) and ``fields`` per-field problems of a
 request that did not validate.
+
+The exception handlers the app registers are here too, so every error a route raises, and
+every request FastAPI refuses, leaves in that envelope.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping
 from typing import Any, Final
 
 import orjson
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import Response
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore.errors import (
     AccessDenied,
@@ -32,6 +39,8 @@ from kybercore.errors import (
     PrinterUnreachable,
     UnknownPrinter,
 )
+
+log = logging.getLogger(__name__)
 
 # Most specific first: PrinterTimeout is a PrinterUnreachable.
 _STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
@@ -97,3 +106,53 @@ def kybercore_error_response(exc: KyberCoreError) -> Response:
     """The answer for any KyberCore error: its status, code, message and reasons."""
     status, code = error_status(exc)
     return error_response(status, code, exc.message, exc.reasons)
+
+
+async def kybercore_error_handler(_request: Request, exc: KyberCoreError) -> Response:
+    """Exception handler: a KyberCore error a route raised."""
+    return kybercore_error_response(exc)
+
+
+# Spanish for the validation errors people meet in forms; anything else gets the generic one.
+_ES_FIELD_ERRORS: Final = {
+    "missing": "Falta este campo.",
+    "string_too_short": "Es demasiado corto.",
+    "string_too_long": "Es demasiado largo.",
+    "string_pattern_mismatch": "El formato no es válido.",
+    "extra_forbidden": "Este campo no existe.",
+    "json_invalid": "El JSON no es válido.",
+    "greater_than": "El valor es demasiado pequeño.",
+    "greater_than_equal": "El valor es demasiado pequeño.",
+    "less_than": "El valor es demasiado grande.",
+    "less_than_equal": "El valor es demasiado grande.",
+    "too_long": "Hay demasiados elementos.",
+}
+
+
+async def validation_error_handler(_request: Request, exc: RequestValidationError) -> Response:
+    """Exception handler: a request that did not validate, field by field in en/es."""
+    # Built from locations and messages only: the input itself may hold an API key.
+    fields = []
+    for error in exc.errors():
+        where = ".".join(str(part) for part in error.get("loc", ()) if part != "body") or "body"
+        message = str(error.get("msg", "invalid"))
+        kind = str(error.get("type", ""))
+        spanish = _ES_FIELD_ERRORS.get(kind, f"El valor no es válido ({message}).")
+        fields.append({"field": where, "en": message, "es": spanish})
+    summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
+    return error_response(422, "invalid_input", f"Invalid request. {summary}", fields=fields)
+
+
+async def http_error_handler(_request: Request, exc: StarletteHTTPException) -> Response:
+    """Exception handler: Starlette's own refusals (unknown path, wrong method...)."""
+    if exc.status_code == 400:
+        # A body that does not parse (bad JSON, bad multipart) is invalid input like any other.
+        return error_response(422, "invalid_input", f"Invalid request: {exc.detail}.")
+    return error_response(exc.status_code, "http_error", str(exc.detail))
+
+
+async def unexpected_error_handler(_request: Request, exc: Exception) -> Response:
+    """Exception handler: a bug; logged with its traceback, answered without details."""
+    log.error("unexpected error", exc_info=exc)
+    message = "Internal error in KyberCore; the server log has details."
+    return error_response(500, "internal", message)

@@ -1,15 +1,20 @@
 """Request and response models of the REST API (they are what /openapi.json documents).
 
 Live printer views stay plain dicts inside the service for speed; these models describe
-them for clients and validate what clients send.
+them for clients and validate what clients send. Action outcomes and verdicts become
+response bodies here too (:func:`action_result`, :func:`check_result`), so every router
+answers them alike.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from kybercore.api.errors import error_status
+from kybercore.core.validation import Verdict
+from kybercore.fleet.actions import ActionOutcome, reason_dict
 from kybercore.registry.models import Capabilities
 
 ActionName = Literal[
@@ -94,6 +99,23 @@ class ActionResult(BaseModel):
     reasons: list[ReasonOut] = Field(default_factory=list)
 
 
+def action_result(outcome: ActionOutcome) -> dict[str, Any]:
+    """An :class:`ActionResult` body for ``outcome``."""
+    if outcome.error is not None:
+        status = error_status(outcome.error)[0]
+    else:
+        status = 201 if outcome.action == "upload" else 200
+    return {
+        "printer_id": outcome.printer_id,
+        "action": outcome.action,
+        "ok": outcome.ok,
+        "status": status,
+        "code": outcome.code,
+        "message": outcome.message,
+        "reasons": outcome.reasons,
+    }
+
+
 class FleetActionResult(BaseModel):
     """One outcome per printer, in the order asked."""
 
@@ -107,6 +129,16 @@ class CheckResult(BaseModel):
     action: str
     level: Literal["ok", "warn", "block"]
     reasons: list[ReasonOut]
+
+
+def check_result(printer_id: str, action: str, verdict: Verdict) -> dict[str, Any]:
+    """A :class:`CheckResult` body for ``verdict``."""
+    return {
+        "printer_id": printer_id,
+        "action": action,
+        "level": verdict.level,
+        "reasons": [reason_dict(r) for r in verdict.reasons],
+    }
 
 
 class FleetCheckResult(BaseModel):
@@ -138,6 +170,12 @@ class ErrorResponse(BaseModel):
     """The envelope of an error."""
 
     error: ErrorBody
+
+
+ERROR_RESPONSES: Final[dict[int | str, dict[str, Any]]] = {
+    status: {"model": ErrorResponse} for status in (404, 409, 422, 502, 503, 504)
+}
+"""The error answers a route documents (``responses=``) besides its own."""
 
 
 class Heater(BaseModel):

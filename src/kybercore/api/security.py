@@ -2,7 +2,8 @@
 browser from being turned against the printers.
 
 - Identity: ``Authorization: Bearer <token>`` (scripts) or the HttpOnly, SameSite=Strict
-  cookie that ``POST /api/session`` sets (the browser, REST and WebSocket alike).
+  cookie that ``POST /api/session`` (:mod:`kybercore.api.session`) sets (the browser, REST
+  and WebSocket alike).
 - A request that changes anything, and every WebSocket, must come from our own origin
   when it says where it comes from: a page elsewhere cannot pause a printer through a
   visitor's browser, even on an open loopback install.
@@ -14,9 +15,8 @@ from __future__ import annotations
 from typing import Any, Final, Literal
 from urllib.parse import urlsplit
 
-from fastapi import Depends, FastAPI, Request, WebSocket
-from fastapi.responses import JSONResponse, Response
-from pydantic import BaseModel, Field
+from fastapi import Depends, Request, WebSocket
+from fastapi.responses import Response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from kybercore.api.auth import COOKIE, OPEN_ACCESS, Identity, Role, TokenStore
@@ -94,61 +94,6 @@ def same_origin(origin: str | None, host: str | None) -> bool:
     if origin is None:
         return True
     return bool(host) and urlsplit(origin).netloc.lower() == str(host).lower()
-
-
-class SessionLogin(BaseModel):
-    """A token to log the browser in with."""
-
-    token: str = Field(min_length=1, max_length=200, description="A KyberCore token.")
-
-
-class SessionInfo(BaseModel):
-    """Whether this server asks for tokens, and who the caller is."""
-
-    access: Literal["open", "tokens"]
-    name: str | None
-    role: Role | None
-
-
-def add_session_routes(app: FastAPI) -> None:
-    """``GET/POST/DELETE /api/session``: who am I, log in, log out."""
-
-    @app.get("/api/session", response_model=SessionInfo)
-    async def session(request: Request) -> dict[str, Any]:
-        """Whether tokens are required, and the caller's identity if any."""
-        access: Access = request.app.state.access
-        identity = access.identify(request.headers, request.cookies)
-        return {
-            "access": access.mode,
-            "name": identity.name if identity else None,
-            "role": identity.role if identity else None,
-        }
-
-    @app.post("/api/session", response_model=SessionInfo)
-    async def login(request: Request, body: SessionLogin) -> Response:
-        """Check a token and keep it in an HttpOnly cookie for this browser."""
-        access: Access = request.app.state.access
-        identity = access.identify({"authorization": f"Bearer {body.token}"}, {})
-        if identity is None:
-            raise AccessDenied("That token is not valid. Check it and retry.", code="unauthorized")
-        answer = JSONResponse({"access": access.mode, "name": identity.name, "role": identity.role})
-        if access.mode == "tokens":
-            answer.set_cookie(
-                COOKIE,
-                body.token,
-                httponly=True,
-                samesite="strict",
-                secure=request.url.scheme == "https",
-                max_age=30 * 24 * 3600,
-            )
-        return answer
-
-    @app.delete("/api/session", status_code=204)
-    async def logout() -> Response:
-        """Forget this browser's token."""
-        answer = Response(status_code=204)
-        answer.delete_cookie(COOKIE)
-        return answer
 
 
 class GuardMiddleware:
