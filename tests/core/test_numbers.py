@@ -16,7 +16,8 @@ from kybercore.core.numbers import finite_number
     [
         (1.5, 1.5), (3, 3.0), ("0.4", 0.4), (" 7 ", 7.0),
         (True, None), (None, None), ("abc", None), ("", None), ([1], None), ({"a": 1}, None),
-        (math.nan, None), (math.inf, None), ("nan", None), ("-inf", None), ("1e999", None), (10**400, None),
+        (math.nan, None), (math.inf, None), ("nan", None), ("-inf", None), ("1e999", None),
+        (10**400, None),
     ],
 )  # fmt: skip
 def test_finite_number(value: object, expected: float | None) -> None:

@@ -17,8 +17,8 @@ from kybercore.fleet.service import FleetService
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry, write_printers
 from kybercore.sim.stack import PrinterStack
-from tests.helpers import KyberCoreServer, wait_for
 from tests.fleet.test_advisor import FakeChatCompletionsServer
+from tests.helpers import KyberCoreServer, wait_for
 
 pytestmark = pytest.mark.integration
 

@@ -12,12 +12,13 @@ from __future__ import annotations
 import asyncio
 import gc
 from collections.abc import Mapping
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Final
 
 import httpx
 import picows
 
 from kybercore.aio import cancel_and_wait
+from kybercore.core.paths import safe_path
 from kybercore.core.validation import Verdict, connection_reasons, validate
 from kybercore.core.view import View, facts, fuse
 from kybercore.errors import (
@@ -42,6 +43,11 @@ from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
+
+# Actions judged against the printer's limits (max temperatures, volume, nozzle); never
+# emergency stop, which must not wait for anything.
+NEEDS_LIMITS: Final = frozenset({"start", "set_temperature", "gcode"})
+LIMITS_WAIT: Final = 5.0
 
 
 class FleetService:
@@ -175,6 +181,8 @@ class FleetService:
         """What would happen: the rules (with the file's real metadata) and, when one is
         configured, the advisor's warnings. Nothing is sent to the printer."""
         printer = self.sessions.get(printer_id)
+        if action in NEEDS_LIMITS:
+            await printer.wait_for_limits(LIMITS_WAIT)
         meta = await self._file_meta_for(printer, action, params)
         printer_facts = facts(printer.config, printer.live)
         verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
@@ -281,6 +289,7 @@ class FleetService:
             return None
         if printer.client is None or printer.live.connection != "online":
             return None  # validation reports the connection problem
+        filename = safe_path(filename)
         try:
             return await printer.client.file_metadata(filename)
         except MoonrakerRpcError as exc:

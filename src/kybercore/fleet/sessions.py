@@ -46,6 +46,18 @@ class FleetPrinter:
     client: MoonrakerClient | None
     """None while the printer is disabled."""
     live: LivePrinter = field(default_factory=LivePrinter)
+    limits_read: asyncio.Event = field(default_factory=asyncio.Event)
+    """Set once Klippy's configfile was read (or could not be) since the last snapshot."""
+
+    async def wait_for_limits(self, timeout: float) -> None:
+        """Wait, at most ``timeout`` s, until the limits read after a (re)connect is done.
+
+        A printer is online ~300 ms before its configfile arrives; an action checked in
+        that window would go without its max-temp, volume and nozzle checks.
+        """
+        if self.live.connection == "online" and not self.limits_read.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.limits_read.wait(), timeout)
 
 
 class Sessions:
@@ -129,6 +141,7 @@ class Sessions:
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
             self._follow_file(printer)
+            printer.limits_read.clear()
             self._spawn(self._detect_capabilities(printer))
         elif isinstance(event, ConnectionChanged):
             live.connection = event.connection
@@ -177,10 +190,13 @@ class Sessions:
     async def _detect_capabilities(self, printer: FleetPrinter) -> None:
         if printer.client is None:
             return
-        with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
-            status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
-            printer.live.detected = detect_capabilities(status["configfile"]["settings"])
-            self._hub.mark(printer.config.id)
+        try:
+            with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
+                status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
+                printer.live.detected = detect_capabilities(status["configfile"]["settings"])
+                self._hub.mark(printer.config.id)
+        finally:
+            printer.limits_read.set()
 
     async def _read_klippy_message(self, printer: FleetPrinter) -> None:
         if printer.client is None:
