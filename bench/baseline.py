@@ -22,7 +22,7 @@ import websockets
 from websockets.asyncio.client import ClientConnection
 
 # kybercore ships no py.typed marker; mypy sees it as an untyped installed package.
-from kybercore.moonraker_client import FLEET_OBJECTS  # type: ignore[import-untyped, unused-ignore]
+from kybercore.moonraker.client import FLEET_OBJECTS  # type: ignore[import-untyped, unused-ignore]
 
 # Opening 5,000 sockets at once only measures the kernel's accept queue; a few hundred at a
 # time connect as fast without dropped SYNs.

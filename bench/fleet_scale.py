@@ -41,8 +41,8 @@ from bench import procs, report
 from bench.fleet_reader import FleetReader, ReadFailed
 
 # kybercore ships no py.typed marker; mypy sees it as an untyped installed package.
-from kybercore.printer_config import PrinterConfig  # type: ignore[import-untyped, unused-ignore]
-from kybercore.registry import write_printers  # type: ignore[import-untyped, unused-ignore]
+from kybercore.registry.models import PrinterConfig  # type: ignore[import-untyped, unused-ignore]
+from kybercore.registry.store import write_printers  # type: ignore[import-untyped, unused-ignore]
 
 RESULTS_DIR: Final = Path(__file__).parent / "results"
 VIEW_POLL_SECONDS: Final = 0.25

@@ -39,17 +39,17 @@ from tests.hardening.faults import Recorder
 from tests.hardening.faulty_moonraker import FaultyMoonraker
 from tests.helpers import KyberCoreServer, wait_for
 
-from kybercore import moonraker_session
-from kybercore.advisor import AdvisorConfig, advise
-from kybercore.backoff import Backoff
+from kybercore.core.validation import PrinterFacts
 from kybercore.errors import PrinterUnreachable
-from kybercore.moonraker_client import FLEET_OBJECTS, MoonrakerClient, websocket_url
-from kybercore.moonraker_session import MoonrakerSession
-from kybercore.printer_config import PrinterConfig
-from kybercore.registry import write_printers
+from kybercore.fleet.advisor import AdvisorConfig, advise
+from kybercore.moonraker import session as moonraker_session
+from kybercore.moonraker.backoff import Backoff
+from kybercore.moonraker.client import FLEET_OBJECTS, MoonrakerClient, websocket_url
+from kybercore.moonraker.session import MoonrakerSession
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
-from kybercore.validation import PrinterFacts
 
 Row = tuple[str, str, list[float], str]
 """(promise, the test constant that bounds it, measured seconds, baseline)."""

@@ -12,7 +12,7 @@ from typing import Any
 import websockets
 from websockets.asyncio.client import ClientConnection
 
-from kybercore.printer_state import merge_status
+from kybercore.moonraker.objects import merge_status
 from tests.helpers import wait_for
 
 

@@ -9,9 +9,9 @@ from typing import Any
 import httpx
 import pytest
 
-from kybercore.moonraker_client import new_http_client
-from kybercore.printer_config import PrinterConfig
-from kybercore.registry import write_printers
+from kybercore.moonraker.http import new_http_client
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
 from tests.helpers import KyberCoreServer

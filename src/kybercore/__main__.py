@@ -1,5 +1,5 @@
 """``python -m kybercore`` is the ``kybercore`` command."""
 
-from kybercore.cli import app
+from kybercore.cli.main import app
 
 app()

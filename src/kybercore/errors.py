@@ -10,50 +10,75 @@
     │   ├── KlippyNotReady            Moonraker is up, Klippy is not: wait
     │   └── MoonrakerRpcError         Moonraker refused this one call
     ├── UnknownPrinter                no printer with that id: check the id
+    ├── FileNotFound                  no such file (on a printer or here): check the name
     ├── ActionRejected                the action is not valid now (state, limits)
     ├── InvalidInput                  the request itself is malformed
-    └── ConfigError                   printers.json (or other config) is unusable
+    ├── AccessDenied                  who are you (unauthenticated) or not allowed (forbidden)
+    ├── ConfigError                   printers.json, tokens.json or an option is unusable
+    └── LaunchError                   a process or port KyberCore needs could not be had
 
-Every message says what happened and what to do about it; the HTTP mapping lives in
-``fleet_controller`` and nowhere else.
+Every error has a stable machine ``code`` and a message that says what happened and what
+to do, in words meant for any caller: no HTTP status, no CLI option. The HTTP mapping
+lives in :mod:`kybercore.api.errors` and nowhere else.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import ClassVar, Literal
 
 
 class KyberCoreError(Exception):
     """Base of every error KyberCore raises on purpose."""
 
-    reasons: tuple[dict[str, str], ...] = ()
-    """Validation reasons behind the error, when there are any (code, level, en, es)."""
+    code: str = "error"
+    """A stable machine-readable name for what went wrong."""
 
-    def __init__(self, message: str) -> None:
+    def __init__(self, message: str, *, reasons: Iterable[dict[str, str]] = ()) -> None:
         super().__init__(message)
         self.message = message
+        self.reasons: tuple[dict[str, str], ...] = tuple(reasons)
+        """Validation reasons behind the error, when there are any (code, level, en, es)."""
 
 
 class PrinterError(KyberCoreError):
     """A printer could not do what was asked."""
 
-    def __init__(self, message: str, *, printer: str | None = None) -> None:
-        super().__init__(f"{printer}: {message}" if printer else message)
+    code = "printer_error"
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        printer: str | None = None,
+        reasons: Iterable[dict[str, str]] = (),
+    ) -> None:
+        super().__init__(f"{printer}: {message}" if printer else message, reasons=reasons)
         self.printer = printer
 
 
 class PrinterUnreachable(PrinterError):
     """The printer's Moonraker cannot be reached now; retry later."""
 
+    code = "printer_unreachable"
+
 
 class PrinterTimeout(PrinterUnreachable):
     """The printer did not answer within the time allowed; retry later."""
+
+    code = "printer_timeout"
 
 
 class PrinterAuthFailed(PrinterError):
     """Moonraker refused our credentials; fix the printer's API key."""
 
+    code = "printer_auth_failed"
+
 
 class KlippyNotReady(PrinterError):
     """Moonraker answers but Klippy is not ready; wait or restart the firmware."""
+
+    code = "klippy_not_ready"
 
     def __init__(self, message: str, *, printer: str | None = None, state: str = "") -> None:
         super().__init__(message, printer=printer)
@@ -63,35 +88,72 @@ class KlippyNotReady(PrinterError):
 class MoonrakerRpcError(PrinterError):
     """Moonraker answered this call with an error."""
 
+    code = "moonraker_error"
+
     def __init__(self, code: int, message: str, *, printer: str | None = None) -> None:
         super().__init__(f"Moonraker refused the request ({code}): {message}", printer=printer)
-        self.code = code
+        self.rpc_code = code
         self.detail = message
 
 
 class UnknownPrinter(KyberCoreError):
     """No printer with that id exists."""
 
+    code = "unknown_printer"
+
     def __init__(self, printer_id: str) -> None:
-        shown = printer_id if len(printer_id) <= 100 else printer_id[:100] + "…"
         super().__init__(
-            f"No printer with id '{shown}'. List the fleet with GET /api/printers "
+            f"No printer with id '{shorten(printer_id)}'. List the fleet with GET /api/printers "
             "or `kybercore printers list`."
         )
         self.printer_id = printer_id
 
 
+class FileNotFound(KyberCoreError):
+    """A file that is not there: on a printer, or one KyberCore was asked to read."""
+
+    code = "not_found"
+
+
 class ActionRejected(KyberCoreError):
     """The action is not allowed in the printer's current state or limits."""
 
-    def __init__(self, message: str, *, code: str = "rejected") -> None:
-        super().__init__(message)
+    def __init__(
+        self, message: str, *, code: str = "rejected", reasons: Iterable[dict[str, str]] = ()
+    ) -> None:
+        super().__init__(message, reasons=reasons)
         self.code = code
 
 
 class InvalidInput(KyberCoreError):
     """The request is malformed: fix the input and send it again."""
 
+    code = "invalid_input"
+
+
+class AccessDenied(KyberCoreError):
+    """The caller is not known (``unauthorized``) or may not do this (``forbidden``)."""
+
+    Kind = Literal["unauthorized", "forbidden"]
+    KINDS: ClassVar[tuple[str, ...]] = ("unauthorized", "forbidden")
+
+    def __init__(self, message: str, *, code: AccessDenied.Kind) -> None:
+        super().__init__(message)
+        self.code = code
+
 
 class ConfigError(KyberCoreError):
-    """A configuration file cannot be used as it is."""
+    """A configuration file or option cannot be used as it is."""
+
+    code = "config_error"
+
+
+class LaunchError(KyberCoreError):
+    """Something KyberCore starts could not start: a port in use, an install, a process."""
+
+    code = "launch_error"
+
+
+def shorten(text: str, limit: int = 100) -> str:
+    """``text`` cut to ``limit`` characters for a message (ids and paths come from users)."""
+    return text if len(text) <= limit else text[:limit] + "…"

@@ -6,7 +6,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 
 import pytest
 
-from kybercore import moonraker_session
+from kybercore.moonraker import session as moonraker_session
 from tests.hardening.faulty_moonraker import FaultyMoonraker
 
 FAST_PING_INTERVAL = 0.5

@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from kybercore.session_events import ConnectionChanged, SessionEvent, StatusDelta, StatusSnapshot
+from kybercore.moonraker.events import ConnectionChanged, SessionEvent, StatusDelta, StatusSnapshot
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -3,7 +3,7 @@ on demand.
 
 Everything a real Moonraker *can* do (restart, lose Klippy, refuse a key) is tested against
 real Moonraker. This small ``websockets`` server on 127.0.0.1 speaks just enough of the
-protocol for a :class:`~kybercore.moonraker_session.MoonrakerSession` to come online
+protocol for a :class:`~kybercore.moonraker.session.MoonrakerSession` to come online
 (``server.connection.identify``, ``server.info`` with Klippy ready,
 ``printer.objects.subscribe``), streams a ``notify_status_update`` every ``interval``
 seconds, and then misbehaves as its scenario says, on every connection:

@@ -41,10 +41,10 @@ from schemathesis.checks import (
     status_code_conformance,
 )
 
-from kybercore import fleet_controller
-from kybercore.fleet_controller import create_app
-from kybercore.printer_config import PrinterConfig
-from kybercore.registry import PrinterRegistry, write_printers
+from kybercore.api import app as fleet_controller
+from kybercore.api.app import create_app
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import PrinterRegistry, write_printers
 from kybercore.sim.stack import free_port
 
 pytestmark = pytest.mark.timeout(600)

@@ -18,9 +18,9 @@ import httpx
 import pytest
 
 from kybercore.errors import PrinterUnreachable
-from kybercore.fleet_service import FleetService
-from kybercore.printer_config import PrinterConfig
-from kybercore.registry import PrinterRegistry, write_printers
+from kybercore.fleet.service import FleetService
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import PrinterRegistry, write_printers
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.hardening.conftest import StartStandin
 from tests.hardening.faults import rss_bytes, standin_process

@@ -16,8 +16,8 @@ from typing import Any
 import httpx
 import pytest
 
-from kybercore.api_models import MAX_SCRIPT_CHARS
-from kybercore.fleet_controller import MAX_UPLOAD_BYTES
+from kybercore.api.app import MAX_UPLOAD_BYTES
+from kybercore.api.models import MAX_SCRIPT_CHARS
 from tests.hardening.faults import rss_bytes
 from tests.helpers import KyberCoreServer
 

@@ -25,9 +25,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.printer_config import PrinterCreate, PrinterUpdate
-from kybercore.printers_format import backup_path
-from kybercore.registry import PrinterRegistry, read_printers
+from kybercore.registry.format import backup_path
+from kybercore.registry.models import PrinterCreate, PrinterUpdate
+from kybercore.registry.store import PrinterRegistry, read_printers
 from kybercore.sim.stack import free_port
 from tests.helpers import KyberCoreServer
 
@@ -183,7 +183,7 @@ def lone_server(tmp_path: Path) -> Iterator[KyberCoreServer]:
 
 
 def _cli(path: Path, *args: str) -> subprocess.Popen[bytes]:
-    command = [sys.executable, "-m", "kybercore", "printers", "--file", str(path), *args]
+    command = [sys.executable, "-m", "kybercore", "printers", "--printers-file", str(path), *args]
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 

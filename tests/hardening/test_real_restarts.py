@@ -26,8 +26,13 @@ from collections.abc import AsyncIterator, Callable
 import httpx
 import pytest
 
-from kybercore.moonraker_client import MoonrakerClient
-from kybercore.session_events import ConnectionChanged, KlippyChanged, SessionEvent, StatusSnapshot
+from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    KlippyChanged,
+    SessionEvent,
+    StatusSnapshot,
+)
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import wait_for
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore import moonraker_client
-from kybercore.printer_config import PrinterConfig
-from kybercore.registry import write_printers
+from kybercore.moonraker import client as moonraker_client
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.hardening.faults import StandinProcess, standin_process
 from tests.helpers import KyberCoreServer

@@ -17,12 +17,12 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 
-from kybercore import moonraker_session
-from kybercore.backoff import Backoff
 from kybercore.errors import MoonrakerRpcError, PrinterUnreachable
-from kybercore.moonraker_client import FLEET_OBJECTS, websocket_url
-from kybercore.moonraker_session import MoonrakerSession
-from kybercore.session_events import StatusDelta
+from kybercore.moonraker import session as moonraker_session
+from kybercore.moonraker.backoff import Backoff
+from kybercore.moonraker.client import FLEET_OBJECTS, websocket_url
+from kybercore.moonraker.events import StatusDelta
+from kybercore.moonraker.session import MoonrakerSession
 from tests.hardening.conftest import FAST_OPEN_TIMEOUT, StartStandin
 from tests.hardening.faults import Recorder, rss_bytes, standin_process
 from tests.hardening.faulty_moonraker import (
@@ -127,7 +127,7 @@ async def test_junk_frames_are_ignored_without_dropping_the_session(
         # An error whose code is not a number is still a typed error, not a dead reader.
         with pytest.raises(MoonrakerRpcError) as error:
             await session.call("printer.gcode.script", {"script": "G28"})
-        assert error.value.code == -1
+        assert error.value.rpc_code == -1
         # The reader went on past that error: more good deltas, and calls still answered.
         seen = len(rec.good_deltas())
         await wait_for(

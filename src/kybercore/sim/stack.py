@@ -22,7 +22,7 @@ from typing import IO, Final
 
 import httpx
 
-from kybercore.errors import ConfigError
+from kybercore.errors import LaunchError
 from kybercore.sim.printer_cfg import PrinterSpec, render_printer_cfg
 from kybercore.sim.runtime import KLIPPY, MOONRAKER, mcu_command
 
@@ -127,7 +127,7 @@ class PrinterStack:
         while not self.mcu_link.exists():
             self._check_alive("mcu")
             if time.monotonic() > deadline:
-                raise ConfigError(f"{self.options.name}: the virtual MCU did not create its pty")
+                raise LaunchError(f"{self.options.name}: the virtual MCU did not create its pty")
             time.sleep(0.02)
 
     def start_klippy(self) -> None:
@@ -199,7 +199,7 @@ class PrinterStack:
                 time.sleep(0.1)
             else:
                 state = f"{state} after {timeout:g} s"
-        raise ConfigError(
+        raise LaunchError(
             f"{self.options.name}: Klippy did not become ready (state: {state}).\n{self._tails()}"
         )
 
@@ -256,7 +256,7 @@ class PrinterStack:
     def _check_not_running(self, name: str) -> None:
         proc = self._procs.get(name)
         if proc is not None and proc.poll() is None:
-            raise ConfigError(f"{self.options.name}: {name} is already running (pid {proc.pid})")
+            raise LaunchError(f"{self.options.name}: {name} is already running (pid {proc.pid})")
 
     def _check_klippy_started(self) -> None:
         """Fail at once when Klippy died at start: its process can outlive its main thread."""
@@ -267,14 +267,14 @@ class PrinterStack:
             return
         if "Traceback" in text:
             cause = text.strip().splitlines()[-1]
-            raise ConfigError(
+            raise LaunchError(
                 f"{self.options.name}: Klippy failed at start ({cause}).\n{self._tails()}"
             )
 
     def _check_alive(self, name: str) -> None:
         proc = self._procs.get(name)
         if proc is not None and proc.poll() is not None:
-            raise ConfigError(
+            raise LaunchError(
                 f"{self.options.name}: {name} exited with code {proc.returncode}.\n{self._tails()}"
             )
 
@@ -340,7 +340,7 @@ def ensure_port_free(port: int, host: str = "127.0.0.1") -> None:
         try:
             sock.bind((host, port))
         except OSError as exc:
-            raise ConfigError(
+            raise LaunchError(
                 f"Cannot listen on {host}:{port} ({exc.strerror}). Stop what uses that port "
                 "or choose another with --port."
             ) from None

@@ -1,0 +1,89 @@
+"""KyberCore's HTTP face, the spec's ``fleet_controller``: the app factory that puts the
+REST API, the browser WebSocket and the dashboard files together.
+
+Thin on purpose: every endpoint hands its work to :class:`FleetService`, and every error
+becomes an HTTP answer through :mod:`kybercore.api.errors`. The routes, one router per
+resource:
+
+- :mod:`kybercore.api.printers`: ``/api/printers``, add/read/edit/remove, actions, dry
+  runs, G-code;
+- :mod:`kybercore.api.files`: ``/api/printers/{id}/files``, list, metadata, thumbnails,
+  upload, delete;
+- :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
+- :mod:`kybercore.api.session`: ``/api/session``, log in and out;
+- :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any, Final
+
+from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, Response
+from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from kybercore import __version__
+from kybercore.api import files, fleet, printers, session, ws
+from kybercore.api.deps import ORJSONResponse
+from kybercore.api.errors import (
+    http_error_handler,
+    kybercore_error_handler,
+    unexpected_error_handler,
+    validation_error_handler,
+)
+from kybercore.api.security import Access, GuardMiddleware
+from kybercore.errors import KyberCoreError
+from kybercore.fleet.service import FleetService
+from kybercore.moonraker.http import new_http_client
+from kybercore.registry.store import PrinterRegistry
+
+WEB_DIR: Final = Path(__file__).parent.parent / "web"
+MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
+
+
+def create_app(
+    registry: PrinterRegistry, access: Access | None = None, **service_options: Any
+) -> FastAPI:
+    """The KyberCore ASGI app for the fleet in ``registry``; open access unless told."""
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        async with new_http_client() as http:
+            service = FleetService(registry, http, **service_options)
+            await service.start()
+            app.state.service = service
+            try:
+                yield
+            finally:
+                await service.stop()
+
+    app = FastAPI(
+        title="KyberCore",
+        version=__version__,
+        description="Fleet manager for Klipper 3D printers through Moonraker.",
+        lifespan=lifespan,
+        default_response_class=ORJSONResponse,
+        exception_handlers={
+            KyberCoreError: kybercore_error_handler,
+            RequestValidationError: validation_error_handler,
+            StarletteHTTPException: http_error_handler,
+            Exception: unexpected_error_handler,
+        },
+    )
+    app.state.access = access or Access("open", None)
+    app.add_middleware(GuardMiddleware, max_body=MAX_UPLOAD_BYTES)
+    for module in (fleet, printers, files, ws, session):
+        app.include_router(module.router)
+
+    @app.get("/", include_in_schema=False)
+    async def index() -> Response:
+        return FileResponse(WEB_DIR / "fleet.html", headers={"Cache-Control": "no-cache"})
+
+    if WEB_DIR.is_dir():
+        app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
+    return app

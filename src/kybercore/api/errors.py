@@ -1,0 +1,158 @@
+"""The one place where errors become HTTP answers: the status map and the error envelope.
+
+Every error KyberCore answers has the same shape::
+
+    {"error": {"code": "...", "message": "...", "reasons": [...], "fields": [...]?}}
+
+``code`` is the error's stable name (:attr:`KyberCoreError.code`), ``message`` says what
+to do, ``reasons`` are validation reasons (en/es) and ``fields`` per-field problems of a
+request that did not validate.
+
+The exception handlers the app registers are here too, so every error a route raises, and
+every request FastAPI refuses, leaves in that envelope.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping
+from typing import Any, Final
+
+import orjson
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import Response
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from kybercore.errors import (
+    AccessDenied,
+    ActionRejected,
+    ConfigError,
+    FileNotFound,
+    InvalidInput,
+    KlippyNotReady,
+    KyberCoreError,
+    LaunchError,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterTimeout,
+    PrinterUnreachable,
+    UnknownPrinter,
+)
+
+log = logging.getLogger(__name__)
+
+# Most specific first: PrinterTimeout is a PrinterUnreachable.
+_STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
+    (UnknownPrinter, 404),
+    (FileNotFound, 404),
+    (ActionRejected, 409),
+    (KlippyNotReady, 409),
+    (InvalidInput, 422),
+    (PrinterAuthFailed, 502),
+    (MoonrakerRpcError, 502),
+    (PrinterTimeout, 504),
+    (PrinterUnreachable, 503),
+    (ConfigError, 500),
+    (LaunchError, 500),
+)
+_ACCESS: Final = {"unauthorized": 401, "forbidden": 403}
+
+
+def error_status(exc: KyberCoreError) -> tuple[int, str]:
+    """HTTP status and the stable error code for ``exc``."""
+    if isinstance(exc, AccessDenied):
+        return _ACCESS[exc.code], exc.code
+    if isinstance(exc, MoonrakerRpcError) and exc.rpc_code == 404:
+        return 404, "not_found"  # a file or object the printer does not have
+    for kind, status in _STATUSES:
+        if isinstance(exc, kind):
+            return status, exc.code
+    return 500, exc.code
+
+
+def error_body(
+    code: str,
+    message: str,
+    reasons: Iterable[Mapping[str, str]] = (),
+    fields: list[dict[str, str]] | None = None,
+) -> dict[str, Any]:
+    """The error envelope, as a dict (bulk results embed it per printer)."""
+    error: dict[str, Any] = {"code": code, "message": message, "reasons": list(reasons)}
+    if fields is not None:
+        error["fields"] = fields
+    return {"error": error}
+
+
+def error_response(
+    status: int,
+    code: str,
+    message: str,
+    reasons: Iterable[Mapping[str, str]] = (),
+    *,
+    fields: list[dict[str, str]] | None = None,
+    headers: Mapping[str, str] | None = None,
+) -> Response:
+    """The error envelope as an HTTP answer."""
+    return Response(
+        orjson.dumps(error_body(code, message, reasons, fields)),
+        status_code=status,
+        media_type="application/json",
+        headers=headers,
+    )
+
+
+def kybercore_error_response(exc: KyberCoreError) -> Response:
+    """The answer for any KyberCore error: its status, code, message and reasons."""
+    status, code = error_status(exc)
+    return error_response(status, code, exc.message, exc.reasons)
+
+
+async def kybercore_error_handler(_request: Request, exc: KyberCoreError) -> Response:
+    """Exception handler: a KyberCore error a route raised."""
+    return kybercore_error_response(exc)
+
+
+# Spanish for the validation errors people meet in forms; anything else gets the generic one.
+_ES_FIELD_ERRORS: Final = {
+    "missing": "Falta este campo.",
+    "string_too_short": "Es demasiado corto.",
+    "string_too_long": "Es demasiado largo.",
+    "string_pattern_mismatch": "El formato no es válido.",
+    "extra_forbidden": "Este campo no existe.",
+    "json_invalid": "El JSON no es válido.",
+    "greater_than": "El valor es demasiado pequeño.",
+    "greater_than_equal": "El valor es demasiado pequeño.",
+    "less_than": "El valor es demasiado grande.",
+    "less_than_equal": "El valor es demasiado grande.",
+    "too_long": "Hay demasiados elementos.",
+}
+
+
+async def validation_error_handler(_request: Request, exc: RequestValidationError) -> Response:
+    """Exception handler: a request that did not validate, field by field in en/es."""
+    # Built from locations and messages only: the input itself may hold an API key.
+    fields = []
+    for error in exc.errors():
+        where = ".".join(str(part) for part in error.get("loc", ()) if part != "body") or "body"
+        message = str(error.get("msg", "invalid"))
+        kind = str(error.get("type", ""))
+        spanish = _ES_FIELD_ERRORS.get(kind, f"El valor no es válido ({message}).")
+        fields.append({"field": where, "en": message, "es": spanish})
+    summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
+    return error_response(422, "invalid_input", f"Invalid request. {summary}", fields=fields)
+
+
+async def http_error_handler(_request: Request, exc: StarletteHTTPException) -> Response:
+    """Exception handler: Starlette's own refusals (unknown path, wrong method...)."""
+    if exc.status_code == 400:
+        # A body that does not parse (bad JSON, bad multipart) is invalid input like any other.
+        return error_response(422, "invalid_input", f"Invalid request: {exc.detail}.")
+    return error_response(exc.status_code, "http_error", str(exc.detail))
+
+
+async def unexpected_error_handler(_request: Request, exc: Exception) -> Response:
+    """Exception handler: a bug; logged with its traceback, answered without details."""
+    log.error("unexpected error", exc_info=exc)
+    message = "Internal error in KyberCore; the server log has details."
+    return error_response(500, "internal", message)

@@ -1,0 +1,83 @@
+"""``/api/printers/{printer_id}/files``: a printer's G-code files, their metadata and
+thumbnails, uploads and deletes.
+
+Every path a client names goes through :func:`~kybercore.core.paths.safe_path` first: it
+is relative to the printer's ``gcodes/`` root and must stay there.
+"""
+
+from __future__ import annotations
+
+import mimetypes
+from typing import Annotated, Any
+
+from fastapi import APIRouter, File, Form, UploadFile
+from fastapi.responses import Response
+
+from kybercore.api.deps import OPERATOR, VIEWER, Service
+from kybercore.api.models import ERROR_RESPONSES, ActionResult, FileItem, action_result
+from kybercore.core.paths import safe_path
+from kybercore.errors import InvalidInput
+
+router = APIRouter(prefix="/api/printers/{printer_id}/files")
+
+
+@router.get(
+    "",
+    response_model=list[FileItem],
+    responses=ERROR_RESPONSES,
+    dependencies=[VIEWER],
+)
+async def files(service: Service, printer_id: str) -> list[dict[str, Any]]:
+    """The printer's G-code files, newest first."""
+    return await service.files(printer_id)
+
+
+@router.delete(
+    "",
+    status_code=204,
+    responses=ERROR_RESPONSES,
+    dependencies=[OPERATOR],
+)
+async def delete_file(service: Service, printer_id: str, path: str) -> Response:
+    """Delete a G-code file (refused while it is being printed)."""
+    await service.delete_file(printer_id, safe_path(path))
+    return Response(status_code=204)
+
+
+@router.get("/metadata", responses=ERROR_RESPONSES, dependencies=[VIEWER])
+async def file_metadata(service: Service, printer_id: str, filename: str) -> dict[str, Any]:
+    """What the slicer wrote in a file's header, as Moonraker parsed it."""
+    return await service.file_metadata(printer_id, safe_path(filename))
+
+
+@router.get("/thumbnail", responses=ERROR_RESPONSES, dependencies=[VIEWER])
+async def thumbnail(service: Service, printer_id: str, path: str) -> Response:
+    """A thumbnail image (path as given by a file's metadata, relative to gcodes/)."""
+    path = safe_path(path)
+    if not path.lower().endswith((".png", ".jpg", ".jpeg")):
+        raise InvalidInput("Only .png and .jpg thumbnails can be fetched.")
+    content = await service.client(printer_id).download(path)
+    media = mimetypes.guess_type(path)[0] or "application/octet-stream"
+    return Response(content, media_type=media, headers={"Cache-Control": "max-age=300"})
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=ActionResult,
+    responses=ERROR_RESPONSES,
+    dependencies=[OPERATOR],
+)
+async def upload(
+    service: Service,
+    printer_id: str,
+    file: Annotated[UploadFile, File(description="The G-code file.")],
+    start: Annotated[bool, Form(description="Print it right after the upload.")] = False,
+    confirm: Annotated[bool, Form(description="Go ahead despite warnings.")] = False,
+) -> dict[str, Any]:
+    """Upload a G-code file (checksummed); optionally validate it and start printing."""
+    filename = safe_path(file.filename or "")
+    # The request size was checked before parsing (GuardMiddleware); the file itself
+    # stays spooled on disk and is streamed on to Moonraker.
+    outcome = await service.upload(printer_id, filename, file.file, start=start, confirm=confirm)
+    return action_result(outcome)

@@ -1,0 +1,259 @@
+"""Request and response models of the REST API (they are what /openapi.json documents).
+
+Live printer views stay plain dicts inside the service for speed; these models describe
+them for clients and validate what clients send. Action outcomes and verdicts become
+response bodies here too (:func:`action_result`, :func:`check_result`), so every router
+answers them alike.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from kybercore.api.errors import error_status
+from kybercore.core.validation import Verdict
+from kybercore.fleet.actions import ActionOutcome, reason_dict
+from kybercore.registry.models import Capabilities
+
+ActionName = Literal[
+    "start",
+    "pause",
+    "resume",
+    "cancel",
+    "emergency_stop",
+    "firmware_restart",
+    "restart",
+    "home",
+    "set_temperature",
+]
+
+MAX_SCRIPT_CHARS = 64 * 1024
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ActionRequest(_In):
+    """Parameters of an action; only those the action uses are read."""
+
+    filename: str | None = Field(
+        default=None, max_length=1024, description="start: the G-code file to print."
+    )
+    extruder: float | None = Field(
+        default=None, ge=0, le=1000, description="set_temperature: hotend target in °C."
+    )
+    bed: float | None = Field(
+        default=None, ge=0, le=1000, description="set_temperature: bed target in °C."
+    )
+    axes: str | None = Field(
+        default=None, pattern=r"^[xyzXYZ]{0,3}$", description="home: axes to home; all if empty."
+    )
+    force: bool = Field(
+        default=False, description="Allow restarts while printing (the only blocks force lifts)."
+    )
+    confirm: bool = Field(default=False, description="Go ahead despite warnings.")
+
+    def params(self) -> dict[str, Any]:
+        """The action's parameters without the force/confirm flags."""
+        return self.model_dump(exclude={"force", "confirm"}, exclude_none=True)
+
+
+class FleetActionRequest(ActionRequest):
+    """One action on several printers."""
+
+    printer_ids: list[str] = Field(
+        min_length=1, max_length=10_000, description="Printers to act on, by id."
+    )
+
+
+class GcodeRequest(_In):
+    """A G-code script to run on one printer."""
+
+    script: str = Field(min_length=1, max_length=MAX_SCRIPT_CHARS, description="G-code lines.")
+    force: bool = Field(default=False, description="Allow restarts or SAVE_CONFIG mid-print.")
+    confirm: bool = Field(default=False, description="Go ahead despite warnings.")
+
+
+class ReasonOut(BaseModel):
+    """One validation finding, in English and Spanish."""
+
+    code: str
+    level: Literal["ok", "warn", "block"]
+    category: str
+    en: str
+    es: str
+
+
+class ActionResult(BaseModel):
+    """The real outcome of an action on one printer."""
+
+    printer_id: str
+    action: str
+    ok: bool
+    status: int = Field(description="HTTP status this outcome has on its own.")
+    code: str = Field(description="'ok' or a stable error code.")
+    message: str
+    reasons: list[ReasonOut] = Field(default_factory=list)
+
+
+def action_result(outcome: ActionOutcome) -> dict[str, Any]:
+    """An :class:`ActionResult` body for ``outcome``."""
+    if outcome.error is not None:
+        status = error_status(outcome.error)[0]
+    else:
+        status = 201 if outcome.action == "upload" else 200
+    return {
+        "printer_id": outcome.printer_id,
+        "action": outcome.action,
+        "ok": outcome.ok,
+        "status": status,
+        "code": outcome.code,
+        "message": outcome.message,
+        "reasons": outcome.reasons,
+    }
+
+
+class FleetActionResult(BaseModel):
+    """One outcome per printer, in the order asked."""
+
+    results: list[ActionResult]
+
+
+class CheckResult(BaseModel):
+    """What validation says about an action, without doing it (dry run)."""
+
+    printer_id: str
+    action: str
+    level: Literal["ok", "warn", "block"]
+    reasons: list[ReasonOut]
+
+
+def check_result(printer_id: str, action: str, verdict: Verdict) -> dict[str, Any]:
+    """A :class:`CheckResult` body for ``verdict``."""
+    return {
+        "printer_id": printer_id,
+        "action": action,
+        "level": verdict.level,
+        "reasons": [reason_dict(r) for r in verdict.reasons],
+    }
+
+
+class FleetCheckResult(BaseModel):
+    """Dry-run verdicts, one per printer."""
+
+    results: list[CheckResult]
+
+
+class FieldError(BaseModel):
+    """What is wrong with one field of the request (422 answers)."""
+
+    field: str = Field(description="Dotted path of the field, e.g. 'capabilities.material'.")
+    en: str
+    es: str
+
+
+class ErrorBody(BaseModel):
+    """Every error answer: ``{"error": {...}}``."""
+
+    code: str
+    message: str
+    reasons: list[ReasonOut] = Field(default_factory=list)
+    fields: list[FieldError] = Field(
+        default_factory=list, description="Per-field problems of an invalid request."
+    )
+
+
+class ErrorResponse(BaseModel):
+    """The envelope of an error."""
+
+    error: ErrorBody
+
+
+ERROR_RESPONSES: Final[dict[int | str, dict[str, Any]]] = {
+    status: {"model": ErrorResponse} for status in (404, 409, 422, 502, 503, 504)
+}
+"""The error answers a route documents (``responses=``) besides its own."""
+
+
+class Heater(BaseModel):
+    """A heater's reading; null while unknown."""
+
+    temperature: float | None
+    target: float | None
+    power: float | None
+
+
+class Job(BaseModel):
+    """The print job the printer is on (or last ran)."""
+
+    state: str = Field(description="standby, printing, paused, complete, cancelled, error or ''.")
+    filename: str
+    progress: float = Field(description="0 to 1.")
+    eta_seconds: int | None = Field(description="Seconds left, while printing or paused.")
+    estimated_time: float | None = Field(description="The slicer's estimate for the whole file.")
+    print_duration: int
+    total_duration: int
+    message: str
+    layer: int | None
+    total_layers: int | None
+    thumbnail: str | None = Field(description="Path of the largest thumbnail, under gcodes/.")
+
+
+class Toolhead(BaseModel):
+    """Where the toolhead is."""
+
+    position: list[float] | None
+    homed_axes: str
+
+
+class PrinterView(BaseModel):
+    """A printer's configuration fused with its live state. Never holds the API key."""
+
+    id: str
+    name: str
+    model: str
+    location: str
+    tags: list[str]
+    notes: str
+    moonraker_url: str
+    api_key_set: bool
+    enabled: bool
+    capabilities: Capabilities = Field(
+        description="Effective limits: printers.json's values, else Klippy's."
+    )
+    connection: str = Field(description="connecting, online, offline, auth_failed or disabled.")
+    connection_error: str
+    klippy_state: str = Field(description="ready, startup, shutdown, error or disconnected.")
+    klippy_message: str
+    job: Job
+    extruder: Heater
+    bed: Heater
+    toolhead: Toolhead
+    fan_speed: float | None
+    speed_factor: float | None
+    actions: dict[str, bool] = Field(description="Which actions are valid in the current state.")
+    updated_at: float = Field(description="Unix time of the last message from Moonraker.")
+
+
+class Health(BaseModel):
+    """Whether KyberCore is up, and a one-line picture of the fleet."""
+
+    status: Literal["ok"]
+    version: str
+    printers: int
+    online: int
+    browsers: int
+    config_error: str | None = Field(description="Why the last printers.json edit was refused.")
+
+
+class FileItem(BaseModel):
+    """A G-code file on a printer."""
+
+    model_config = ConfigDict(extra="allow")
+
+    path: str
+    modified: float
+    size: int

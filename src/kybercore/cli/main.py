@@ -1,0 +1,31 @@
+"""The ``kybercore`` command: serve the dashboard, run a demo fleet, manage printers.
+
+Only what every command needs is imported here; FastAPI, uvicorn and the simulator are
+imported by the commands that use them, so ``kybercore printers list`` starts fast.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from kybercore import __version__
+from kybercore.cli import serve as serve_commands
+from kybercore.cli.output import console
+from kybercore.cli.printers import printers_app
+from kybercore.cli.tokens import tokens_app
+
+app = typer.Typer(
+    help="KyberCore: one dashboard for a fleet of Klipper printers, through Moonraker.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+app.add_typer(printers_app, name="printers")
+app.add_typer(tokens_app, name="tokens")
+for command in (serve_commands.serve, serve_commands.demo, serve_commands.sim):
+    app.command()(command)
+
+
+@app.command()
+def version() -> None:
+    """Print KyberCore's version."""
+    console.print(__version__)

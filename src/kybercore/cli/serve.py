@@ -1,0 +1,216 @@
+"""``kybercore serve``, ``demo`` and ``sim``: the commands that run servers and printers.
+
+Their heavy imports (FastAPI, uvicorn, the simulator) happen when they run, not when the
+``kybercore`` command starts.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import logging
+import os
+import signal
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from kybercore.cli.options import Host, Port, PrintersFile
+from kybercore.cli.output import console, fail, print_table
+from kybercore.errors import KyberCoreError
+from kybercore.registry.store import PrinterRegistry, default_printers_path, write_printers
+
+if TYPE_CHECKING:
+    from kybercore.api.security import Access
+    from kybercore.fleet.advisor import AdvisorConfig
+    from kybercore.sim.stack import PrinterStack
+
+
+def serve(
+    host: Host = "127.0.0.1",
+    port: Port = 8000,
+    printers_file: PrintersFile = None,
+    advisor_url: Annotated[
+        str | None,
+        typer.Option(
+            envvar="KYBERCORE_ADVISOR_URL",
+            help="OpenAI-compatible chat API that may add warnings to actions (off if unset).",
+        ),
+    ] = None,
+    advisor_model: Annotated[
+        str, typer.Option(envvar="KYBERCORE_ADVISOR_MODEL", help="Model name for the advisor.")
+    ] = "gpt-4o-mini",
+    log_level: Annotated[
+        str, typer.Option(help="debug, info, warning or error.", case_sensitive=False)
+    ] = "info",
+) -> None:
+    """Serve the dashboard and API for the printers in printers.json.
+
+    The advisor's API key is read from $KYBERCORE_ADVISOR_KEY (never a command-line flag,
+    which would land in shell history).
+    """
+    from pydantic import SecretStr
+
+    from kybercore.fleet.advisor import AdvisorConfig
+    from kybercore.sim.stack import ensure_port_free
+
+    path = printers_file or default_printers_path()
+    advisor = None
+    if advisor_url:
+        key = os.environ.get("KYBERCORE_ADVISOR_KEY")
+        advisor = AdvisorConfig(advisor_url, SecretStr(key) if key else None, advisor_model)
+    try:
+        access = _access(path, host)
+        ensure_port_free(port, host)
+        registry = _open_registry(path)
+    except KyberCoreError as exc:
+        raise fail(exc.message) from None
+    _run_server(registry, host, port, access, advisor=advisor, log_level=log_level)
+
+
+def demo(
+    printers: Annotated[int, typer.Option(min=1, max=20, help="How many virtual printers.")] = 3,
+    host: Host = "127.0.0.1",
+    port: Port = 8000,
+    folder: Annotated[
+        Path | None, typer.Option("--dir", help="Where the demo keeps its printers' data.")
+    ] = None,
+) -> None:
+    """Start virtual printers (real Klippy + Moonraker on a simulated MCU) and the dashboard."""
+    from kybercore.sim.demo import demo_fleet, write_demo_printers
+    from kybercore.sim.runtime import kybercore_home
+    from kybercore.sim.stack import ensure_port_free
+
+    folder = folder or kybercore_home() / "demo"
+    try:
+        ensure_port_free(port, host)
+        _install_runtimes()
+        with (
+            console.status("Starting virtual printers…") as status,
+            demo_fleet(folder, printers, progress=lambda line: status.update(line)) as stacks,
+        ):
+            path = folder / "printers.json"
+            write_demo_printers(path, stacks)
+            registry = _open_registry(path)
+            access = _access(path, host)
+            status.stop()
+            _print_fleet(stacks)
+            console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
+            console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
+            _run_server(registry, host, port, access)
+    except KyberCoreError as exc:
+        raise fail(exc.message) from None
+    console.print("Stopped the dashboard and every virtual printer.")
+
+
+def sim(
+    printers: Annotated[int, typer.Option(min=1, max=20, help="How many virtual printers.")] = 3,
+    base_port: Annotated[int, typer.Option(help="Moonraker port of the first printer.")] = 7125,
+    folder: Annotated[Path | None, typer.Option("--dir", help="Data folder.")] = None,
+) -> None:
+    """Start virtual printers only, for Mainsail, Fluidd, curl or another KyberCore."""
+    from kybercore.sim.demo import demo_fleet
+    from kybercore.sim.runtime import kybercore_home
+
+    folder = folder or kybercore_home() / "sim"
+    try:
+        _install_runtimes()
+        with (
+            console.status("Starting virtual printers…") as status,
+            demo_fleet(
+                folder, printers, base_port=base_port, progress=lambda line: status.update(line)
+            ) as stacks,
+        ):
+            status.stop()
+            _print_fleet(stacks)
+            console.print("\nPress Ctrl-C to stop every virtual printer.")
+            _wait_for_ctrl_c()
+    except KyberCoreError as exc:
+        raise fail(exc.message) from None
+    console.print("Stopped every virtual printer.")
+
+
+def _open_registry(path: Path) -> PrinterRegistry:
+    """Read printers.json, creating an empty one if there is none; refuse a broken file."""
+    registry = PrinterRegistry(path)
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_printers(path, [])
+        console.print(
+            f"Created an empty fleet in {path}. Add printers with `kybercore printers add`."
+        )
+    registry.reload()
+    return registry
+
+
+def _access(printers_file: Path, host: str) -> Access:
+    """Open on loopback without tokens; tokens otherwise; refuse what would be unsafe."""
+    from kybercore.api.auth import TokenStore, access_mode, tokens_path_for
+    from kybercore.api.security import Access
+
+    store = TokenStore(tokens_path_for(printers_file))
+    mode = access_mode(_is_loopback(host), store)
+    if mode == "open":
+        console.print("Open access: listening on loopback and no token exists.")
+    return Access(mode, store)
+
+
+def _run_server(
+    registry: PrinterRegistry,
+    host: str,
+    port: int,
+    access: Access,
+    advisor: AdvisorConfig | None = None,
+    log_level: str = "info",
+) -> None:
+    import uvicorn
+
+    from kybercore.api.app import create_app
+
+    logging.basicConfig(
+        level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    # The HTTP client logs every request at INFO; too chatty for a farm of printers.
+    logging.getLogger("httpx").setLevel(logging.WARNING)
+    uvicorn.run(
+        create_app(registry, access, advisor=advisor),
+        host=host,
+        port=port,
+        log_level="warning",
+        ws="websockets-sansio",
+    )
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _install_runtimes() -> None:
+    from kybercore.sim.runtime import ensure_runtimes
+
+    with console.status("Checking Moonraker and Klippy…") as status:
+        ensure_runtimes(log=lambda line: status.update(line))
+
+
+def _print_fleet(stacks: list[PrinterStack]) -> None:
+    from rich.table import Table
+
+    table = Table(title="Virtual printers")
+    for column in ("printer", "Moonraker", "data"):
+        table.add_column(column)
+    for stack in stacks:
+        table.add_row(stack.options.name, stack.url, str(stack.data_dir))
+    print_table(table)
+
+
+def _wait_for_ctrl_c() -> None:
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop.wait()

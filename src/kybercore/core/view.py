@@ -1,0 +1,266 @@
+"""The fused view of a printer: its configuration plus its live state, as plain data.
+
+Pure functions only. The fleet service keeps a :class:`LivePrinter` per printer, fed by the
+Moonraker session; :func:`fuse` turns config + live state into the JSON-ready dict that
+``GET /api/printers`` and the browser WebSocket send, and :func:`diff` finds what changed
+between two such dicts so only that goes over the wire.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import weakref
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from kybercore.core.numbers import finite_number
+from kybercore.core.validation import PrinterFacts, allowed_actions
+from kybercore.moonraker.objects import Status
+from kybercore.registry.models import PrinterConfig
+
+View = dict[str, Any]
+
+
+@dataclass
+class LivePrinter:
+    """What KyberCore knows right now about one printer, from Moonraker."""
+
+    connection: str = "connecting"
+    connection_error: str = ""
+    klippy_state: str = "disconnected"
+    klippy_message: str = ""
+    status: Status = field(default_factory=dict)
+    file_meta: dict[str, Any] | None = None
+    """Metadata of the file in ``print_stats.filename`` (for ETA and thumbnail)."""
+    detected: dict[str, Any] = field(default_factory=dict)
+    """Capabilities read from Klippy's configfile: build_volume, nozzle_diameter, max temps."""
+    updated_at: float = 0.0
+
+
+def _num(value: Any, digits: int = 1) -> float | None:
+    number = finite_number(value)
+    return None if number is None else round(number, digits)
+
+
+# fuse() runs for every status update of every printer (4 Hz each); dumping the pydantic
+# config, merging capabilities and re-deriving the allowed actions were most of its cost. A
+# config object is replaced on every edit, never changed in place, and so is
+# ``LivePrinter.detected``: what derives from them is kept for as long as they live.
+@dataclass
+class _ConfigDerived:
+    public: View
+    configured: dict[str, Any]
+    """``config.capabilities`` as JSON data; None where printers.json leaves a value out."""
+    detected: dict[str, Any] | None = None
+    capabilities: dict[str, Any] = field(default_factory=dict)
+    """``configured`` completed from ``detected`` (the object it was computed from)."""
+    actions_key: tuple[Any, ...] | None = None
+    actions: dict[str, bool] = field(default_factory=dict)
+    """:func:`allowed_actions` for the live state in ``actions_key``."""
+
+
+_derived: dict[int, _ConfigDerived] = {}
+
+
+def _config_derived(config: PrinterConfig) -> _ConfigDerived:
+    key = id(config)
+    derived = _derived.get(key)
+    if derived is None:
+        derived = _ConfigDerived(
+            config.public().model_dump(mode="json"),
+            config.capabilities.model_dump(mode="json"),
+        )
+        _derived[key] = derived
+        weakref.finalize(config, _derived.pop, key, None)
+    return derived
+
+
+def _actions(config: PrinterConfig, live: LivePrinter) -> dict[str, bool]:
+    """:func:`allowed_actions`, derived again only when an input of :func:`facts` changed
+    (printers change state far less often than they report temperatures)."""
+    derived = _config_derived(config)
+    key = (
+        capabilities(config, live),
+        live.connection,
+        live.klippy_state,
+        live.status.get("print_stats", {}).get("state"),
+        live.status.get("toolhead", {}).get("axis_minimum"),
+    )
+    if derived.actions_key != key:
+        derived.actions = allowed_actions(facts(config, live))
+        derived.actions_key = key
+    return derived.actions
+
+
+def capabilities(config: PrinterConfig, live: LivePrinter) -> dict[str, Any]:
+    """What validation uses: printers.json's values, else what Klippy reports.
+    Shared between calls: never modify the result."""
+    derived = _config_derived(config)
+    if derived.detected is not live.detected:
+        derived.capabilities = {
+            key: value if value is not None else live.detected.get(key)
+            for key, value in derived.configured.items()
+        }
+        derived.detected = live.detected
+    return derived.capabilities
+
+
+def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
+    """The inputs of :mod:`kybercore.core.validation` for this printer."""
+    caps = capabilities(config, live)
+    volume = caps.get("build_volume")
+    toolhead = live.status.get("toolhead", {})
+    minimum = toolhead.get("axis_minimum")
+    return PrinterFacts(
+        connection=live.connection,
+        klippy_state=live.klippy_state,
+        print_state=str(live.status.get("print_stats", {}).get("state", "")),
+        model=config.model,
+        build_volume=(volume["x"], volume["y"], volume["z"]) if volume else None,
+        axis_minimum=tuple(minimum[:3])
+        if isinstance(minimum, list) and len(minimum) >= 3
+        else None,
+        nozzle_diameter=caps.get("nozzle_diameter"),
+        material=caps.get("material"),
+        max_extruder_temp=caps.get("max_extruder_temp"),
+        max_bed_temp=caps.get("max_bed_temp"),
+    )
+
+
+def eta_seconds(
+    progress: float, print_duration: float, estimated_time: float | None
+) -> float | None:
+    """Seconds left in a print.
+
+    The slicer's estimate scaled by what is left is steadier early on; once a few percent
+    are done, the measured pace (what Mainsail calls the "file" estimate) is blended in.
+    """
+    if progress <= 0:
+        return estimated_time
+    if progress >= 1:
+        return 0.0
+    by_pace = print_duration / progress - print_duration
+    if not estimated_time:
+        return by_pace if progress >= 0.01 else None
+    by_slicer = estimated_time * (1 - progress)
+    weight = min(progress / 0.2, 1.0)
+    return by_slicer * (1 - weight) + by_pace * weight
+
+
+def fuse(config: PrinterConfig, live: LivePrinter) -> View:
+    """The printer as the API and the browser see it. Never contains the API key."""
+    # Field types are whatever the peer sent: read numbers and text defensively, so one
+    # misbehaving printer cannot break the view of the whole fleet.
+    status = live.status
+    stats = status.get("print_stats", {})
+    sdcard = status.get("virtual_sdcard", {})
+    display = status.get("display_status", {})
+    toolhead = status.get("toolhead", {})
+    info: dict[str, Any] = stats["info"] if isinstance(stats.get("info"), dict) else {}
+    print_state = str(stats.get("state", "")) if live.klippy_state == "ready" else ""
+    filename = str(stats.get("filename") or "")
+    progress = _num(display.get("progress"), 4) or _num(sdcard.get("progress"), 4) or 0.0
+    meta = live.file_meta if live.file_meta and live.file_meta.get("filename") == filename else {}
+    estimated = _num(meta.get("estimated_time"), 0)
+    duration = _num(stats.get("print_duration"), 1) or 0.0
+    eta = (
+        eta_seconds(progress, duration, estimated)
+        if print_state in ("printing", "paused")
+        else None
+    )
+    thumbs = [t for t in meta.get("thumbnails") or [] if isinstance(t, dict)]
+    thumbnail = (
+        max(thumbs, key=lambda t: _num(t.get("width")) or 0).get("relative_path")
+        if thumbs
+        else None
+    )
+    position = toolhead.get("position")
+    if not isinstance(position, list) or not all(isinstance(v, (int, float)) for v in position):
+        position = None
+    # A shallow copy: nested values of the cached dump are shared, and views are never
+    # modified once built (the hub diffs them, the API serializes them).
+    view: View = dict(_config_derived(config).public)
+    view["capabilities"] = capabilities(config, live)
+    view.update(
+        connection=live.connection,
+        connection_error=live.connection_error,
+        klippy_state=live.klippy_state,
+        klippy_message=live.klippy_message,
+        job={
+            "state": print_state,
+            "filename": filename,
+            "progress": round(progress, 4),
+            "eta_seconds": round(eta) if eta is not None else None,
+            "estimated_time": estimated,
+            "print_duration": round(duration),
+            "total_duration": round(_num(stats.get("total_duration")) or 0.0),
+            "message": str(stats.get("message") or display.get("message") or ""),
+            "layer": info.get("current_layer"),
+            "total_layers": info.get("total_layer"),
+            "thumbnail": thumbnail,
+        },
+        extruder=_heater(status.get("extruder", {})),
+        bed=_heater(status.get("heater_bed", {})),
+        toolhead={
+            "position": [round(float(v), 2) for v in position[:4]] if position else None,
+            "homed_axes": str(toolhead.get("homed_axes") or ""),
+        },
+        fan_speed=_num(status.get("fan", {}).get("speed"), 2),
+        speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),
+        actions=_actions(config, live),
+        updated_at=round(live.updated_at, 1),
+    )
+    return view
+
+
+def _heater(obj: Mapping[str, Any]) -> dict[str, float | None]:
+    return {
+        "temperature": _num(obj.get("temperature")),
+        "target": _num(obj.get("target")),
+        "power": _num(obj.get("power"), 2),
+    }
+
+
+_ABSENT: Any = object()
+"""Stands for a key missing from the old view: equal to nothing."""
+
+
+def diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    """A patch that turns ``old`` into ``new`` when deep-merged (lists replace).
+
+    Keys never disappear from a view, so a patch only sets; it is empty when nothing changed.
+    """
+    patch: dict[str, Any] = {}
+    for key, value in new.items():
+        previous = old.get(key, _ABSENT)
+        if value is previous or value == previous:
+            # Most of a view is unchanged: one C-level comparison instead of a recursion
+            # into each nested dict (capabilities, actions, job, heaters); the parts fuse()
+            # reuses (config, capabilities, actions) are the very same objects.
+            continue
+        if isinstance(value, dict) and isinstance(previous, dict):
+            inner = diff(previous, value)
+            if inner:
+                patch[key] = inner
+        else:
+            patch[key] = value
+    return patch
+
+
+def detect_capabilities(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Build volume, nozzle and heater limits from Klippy's ``configfile.settings``."""
+    detected: dict[str, Any] = {}
+    with contextlib.suppress(KeyError, TypeError, ValueError):
+        detected["build_volume"] = {
+            axis: float(settings[f"stepper_{axis}"]["position_max"]) for axis in ("x", "y", "z")
+        }
+    extruder = settings.get("extruder", {})
+    bed = settings.get("heater_bed", {})
+    if "nozzle_diameter" in extruder:
+        detected["nozzle_diameter"] = float(extruder["nozzle_diameter"])
+    if "max_temp" in extruder:
+        detected["max_extruder_temp"] = float(extruder["max_temp"])
+    if "max_temp" in bed:
+        detected["max_bed_temp"] = float(bed["max_temp"])
+    return detected

@@ -1,0 +1,241 @@
+"""Fan-out of fleet changes to browser clients, and the published fleet list.
+
+Every printer update only marks the printer dirty. Ten times a second the hub renders the
+dirty printers (in slices, so the event loop keeps serving requests and sockets meanwhile)
+into one delta frame, serialized once and queued for every client, so the frame rate per
+client stays bounded whatever the fleet size. A client that cannot keep up overflows its
+bounded queue; the queue is then emptied and replaced by one fresh snapshot, so a slow
+browser never slows the others and never misses state. ``GET /api/printers`` reads the same
+published views (:meth:`Hub.fleet_json`), so reading the fleet never renders it."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import orjson
+
+from kybercore.aio import cancel_and_wait
+from kybercore.core.view import View, diff
+from kybercore.moonraker.objects import merge_status
+
+log = logging.getLogger(__name__)
+
+TICK_SECONDS: Final = 0.1
+SLICE_SECONDS: Final = 0.001
+QUEUE_FRAMES: Final = 64
+
+
+@dataclass(eq=False)
+class HubClient:
+    """One browser connection: a bounded queue of encoded frames."""
+
+    id: int
+    queue: asyncio.Queue[bytes] = field(default_factory=lambda: asyncio.Queue(QUEUE_FRAMES))
+    console: set[str] = field(default_factory=set)
+    """Printers whose G-code responses this client asked for."""
+    resyncs: int = 0
+
+
+class Hub:
+    """Publishes snapshots, coalesced per-printer deltas and events to every client."""
+
+    def __init__(self, render: Callable[[str], View | None], tick: float = TICK_SECONDS) -> None:
+        self._renderer = render
+        self._tick = tick
+        self._views: dict[str, View] = {}
+        self._dirty: dict[str, None] = {}
+        """Printers to render at the next tick, in the order they were first marked (a new
+        printer's view takes that place in the fleet list)."""
+        self._events: list[dict[str, Any]] = []
+        self._unsent: dict[str, Any] = {}
+        """Patches rendered into the views but not yet sent to the clients."""
+        self._removed: set[str] = set()
+        self._clients: dict[int, HubClient] = {}
+        self._ids = itertools.count(1)
+        self._seq = 0
+        self._fleet: bytes | None = None
+        """Every view as one JSON array, until a flush replaces a view."""
+        self._snapshot_frame: bytes | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    # -- feeding -----------------------------------------------------------------------
+
+    def mark(self, printer_id: str) -> None:
+        """Note that a printer's view may have changed; sent with the next tick."""
+        self._dirty[printer_id] = None
+
+    def event(self, frame: dict[str, Any]) -> None:
+        """Queue an event frame (connection, Klippy, action result) for every client."""
+        self._events.append(frame)
+
+    def console(self, printer_id: str, message: str) -> None:
+        """Send a G-code response to the clients that watch this printer's console."""
+        frame = _encode({"type": "gcode_response", "printer": printer_id, "message": message})
+        for client in self._clients.values():
+            if printer_id in client.console:
+                self._offer(client, frame)
+
+    # -- clients -----------------------------------------------------------------------
+
+    def connect(self) -> HubClient:
+        """Register a client; its first frame is a full snapshot."""
+        self.flush()
+        client = HubClient(next(self._ids))
+        client.queue.put_nowait(self._snapshot())
+        self._clients[client.id] = client
+        return client
+
+    def disconnect(self, client: HubClient) -> None:
+        """Forget a client."""
+        self._clients.pop(client.id, None)
+
+    @property
+    def client_count(self) -> int:
+        """Browsers connected now."""
+        return len(self._clients)
+
+    # -- publishing --------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the tick loop."""
+        if self._task is None:
+            self._task = asyncio.create_task(self._run(), name="fleet-hub")
+
+    async def stop(self) -> None:
+        """Stop the tick loop."""
+        task, self._task = self._task, None
+        await cancel_and_wait(task)
+
+    def view(self, printer_id: str) -> View | None:
+        """The last published view of a printer (fresh after :meth:`flush`)."""
+        return self._views.get(printer_id)
+
+    def views(self) -> list[View]:
+        """Every published view (at most one tick old)."""
+        return list(self._views.values())
+
+    def fleet_json(self) -> bytes:
+        """Every published view as a JSON array, as ``GET /api/printers`` sends it; one
+        body for every read until the next tick changes a view.
+
+        One ``orjson.dumps`` of the whole list: four times faster than joining per-printer
+        encodings (1.8 ms for 1,000 printers).
+        """
+        if self._fleet is None:
+            self._fleet = _encode(list(self._views.values()))
+        return self._fleet
+
+    def flush(self) -> None:
+        """Render dirty printers now and queue one delta frame (plus pending events)."""
+        self._render(self._take_dirty())
+        self._publish()
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_tick = loop.time()
+        while True:
+            # A steady rate: the time spent rendering is not added to the wait.
+            next_tick = max(next_tick + self._tick, loop.time())
+            await asyncio.sleep(next_tick - loop.time())
+            try:
+                # In slices, so requests and sockets are served between them: rendering
+                # 2,000 changed printers at once stalls everything ~100 ms. A slice lasts
+                # SLICE_SECONDS, or as long as the other work took while it waited, so a
+                # busy fleet cannot starve the browsers of their updates.
+                dirty = self._take_dirty()
+                budget = SLICE_SECONDS
+                while dirty:
+                    dirty = self._render(dirty, until=time.perf_counter() + budget)
+                    if dirty:
+                        waited = time.perf_counter()
+                        await asyncio.sleep(0)
+                        budget = max(SLICE_SECONDS, time.perf_counter() - waited)
+                self._publish()
+            except Exception:
+                # One bad render must not stop every browser's updates.
+                log.exception("fleet hub: publishing failed")
+
+    def _take_dirty(self) -> list[str]:
+        dirty = list(self._dirty)
+        self._dirty.clear()
+        return dirty
+
+    def _render(self, printer_ids: list[str], until: float = math.inf) -> list[str]:
+        """Render printers into the views and the patches not sent yet, until the
+        ``time.perf_counter()`` value ``until``; return the printers left."""
+        if printer_ids:
+            self._fleet = self._snapshot_frame = None
+        for index, printer_id in enumerate(printer_ids):
+            if index and time.perf_counter() > until:
+                return printer_ids[index:]
+            try:
+                new = self._renderer(printer_id)
+            except Exception:
+                # One printer's bad data must not stop the others: keep its last view.
+                log.exception("fleet hub: cannot render printer %s", printer_id)
+                continue
+            old = self._views.get(printer_id)
+            if new is None:
+                if self._views.pop(printer_id, None) is not None:
+                    self._unsent.pop(printer_id, None)
+                    self._removed.add(printer_id)
+                continue
+            self._views[printer_id] = new
+            if old is None:
+                self._removed.discard(printer_id)
+                self._unsent[printer_id] = new
+                continue
+            patch = diff(old, new)
+            if patch:
+                # Rendered twice before a publish (a flush between two slices): one patch.
+                unsent = self._unsent.get(printer_id)
+                self._unsent[printer_id] = patch if unsent is None else merge_status(unsent, patch)
+        return []
+
+    def _publish(self) -> None:
+        """Queue the unsent patches as one delta frame, then the pending events."""
+        frames: list[bytes] = []
+        if self._unsent or self._removed:
+            self._seq += 1
+            delta = {
+                "type": "delta",
+                "seq": self._seq,
+                "printers": self._unsent,
+                "removed": sorted(self._removed),
+            }
+            frames.append(_encode(delta))
+            self._unsent, self._removed = {}, set()
+        frames.extend(_encode(event) for event in self._events)
+        self._events.clear()
+        for frame in frames:
+            for client in list(self._clients.values()):
+                self._offer(client, frame)
+
+    def _snapshot(self) -> bytes:
+        # Built once for every client that connects or overflows before the views change:
+        # at 5,000 printers a snapshot is ~5 MB, and slow clients tend to overflow together.
+        if self._snapshot_frame is None:
+            head = b'{"type":"snapshot","seq":%d,"printers":' % self._seq
+            self._snapshot_frame = head + self.fleet_json() + b"}"
+        return self._snapshot_frame
+
+    def _offer(self, client: HubClient, frame: bytes) -> None:
+        try:
+            client.queue.put_nowait(frame)
+        except asyncio.QueueFull:
+            # Replace the backlog by the state it would have led to.
+            while not client.queue.empty():
+                client.queue.get_nowait()
+            client.resyncs += 1
+            client.queue.put_nowait(self._snapshot())
+
+
+def _encode(frame: dict[str, Any] | list[View]) -> bytes:
+    return orjson.dumps(frame)

@@ -1,0 +1,302 @@
+"""The fleet's business logic: fuse printers.json with live Moonraker state, validate
+actions, delegate them to Moonraker, and keep printers.json and the sessions in step.
+
+One Moonraker session per enabled printer feeds a live cache; pages and the API read the
+cache, never Moonraker directly. Every action is validated first
+(:mod:`kybercore.core.validation`), then sent, and its real outcome returned: nothing here
+reports a success that did not happen.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+from collections.abc import Mapping
+from typing import Any, BinaryIO, Final
+
+import httpx
+import picows
+
+from kybercore.aio import cancel_and_wait
+from kybercore.core.paths import safe_path
+from kybercore.core.validation import Verdict, connection_reasons, validate
+from kybercore.core.view import View, facts, fuse
+from kybercore.errors import (
+    ActionRejected,
+    ConfigError,
+    FileNotFound,
+    KyberCoreError,
+    MoonrakerRpcError,
+)
+from kybercore.fleet.actions import (
+    ActionOutcome,
+    done_message,
+    execute,
+    failed_outcome,
+    raise_if_blocked,
+    require_confirmation,
+)
+from kybercore.fleet.advisor import AdvisorConfig, advise, combine
+from kybercore.fleet.hub import Hub
+from kybercore.fleet.sessions import FleetPrinter, Sessions
+from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.link import Connect
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.registry.store import PrinterRegistry
+
+# Actions judged against the printer's limits (max temperatures, volume, nozzle); never
+# emergency stop, which must not wait for anything.
+NEEDS_LIMITS: Final = frozenset({"start", "set_temperature", "gcode"})
+LIMITS_WAIT: Final = 5.0
+
+
+class FleetService:
+    """Owns the printers' sessions, the live cache, and every action on the fleet."""
+
+    def __init__(
+        self,
+        registry: PrinterRegistry,
+        http: httpx.AsyncClient,
+        *,
+        connect: Connect = picows.ws_connect,
+        watch_interval: float = 1.0,
+        advisor: AdvisorConfig | None = None,
+    ) -> None:
+        self.registry = registry
+        self._http = http
+        self._watch_interval = watch_interval
+        self._advisor = advisor
+        self.hub = Hub(self._render)
+        self.sessions = Sessions(http, connect, self.hub)
+        self._watcher: asyncio.Task[None] | None = None
+        self._freezer: asyncio.Task[None] | None = None
+        self.config_error: str | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Read printers.json (refusing a broken file), connect to every printer."""
+        printers = await asyncio.to_thread(self.registry.reload)
+        self.sessions.apply(printers)
+        self._freezer = asyncio.create_task(self._freeze_when_connected())
+        self.hub.start()
+        self._watcher = asyncio.create_task(
+            self.registry.watch(self._on_file_change, self._on_file_error, self._watch_interval),
+            name="printers-json-watch",
+        )
+
+    async def _freeze_when_connected(self, limit: int = 120) -> None:
+        """Once the fleet is connected, move the long-lived objects (sessions, sockets) out
+        of the garbage collector's reach: full collections then scan only what churns.
+        Measured at 5,000 printers: the collector took 26 % of the CPU before."""
+        for _ in range(limit):
+            live = [p.live.connection for p in self.sessions.all()]
+            if all(state in ("online", "disabled") for state in live):
+                break
+            await asyncio.sleep(1.0)
+        gc.collect()
+        gc.freeze()
+
+    async def stop(self) -> None:
+        """Close every session and stop background work."""
+        await cancel_and_wait(self._watcher)
+        await cancel_and_wait(self._freezer)
+        await self.hub.stop()
+        await self.sessions.close()
+
+    # -- reading -----------------------------------------------------------------------
+
+    def views(self) -> list[View]:
+        """Every printer fused with its live state, as last published to the browsers (at
+        most one hub tick, 100 ms, old): reading the fleet never renders it."""
+        return self.hub.views()
+
+    def fleet_json(self) -> bytes:
+        """:meth:`views` as a JSON array, shared by every reader until the next tick."""
+        return self.hub.fleet_json()
+
+    def view(self, printer_id: str) -> View:
+        """One printer's view, as last published (like :meth:`views`)."""
+        printer = self.sessions.get(printer_id)
+        view = self.hub.view(printer_id)
+        # Unpublished only when its first render failed: render here, to surface why.
+        return view if view is not None else fuse(printer.config, printer.live)
+
+    def config(self, printer_id: str) -> PrinterConfig:
+        """A printer's configuration (with the API key: never send it to a client)."""
+        return self.sessions.get(printer_id).config
+
+    def client(self, printer_id: str) -> MoonrakerClient:
+        """The Moonraker client of an enabled, connected printer."""
+        printer = self.sessions.get(printer_id)
+        connection = connection_reasons(facts(printer.config, printer.live))
+        raise_if_blocked(Verdict.of(connection), printer_id)
+        assert printer.client is not None  # only a disabled printer has none, refused above
+        return printer.client
+
+    # -- printers.json -----------------------------------------------------------------
+
+    async def add_printer(self, new: PrinterCreate) -> View:
+        """Add a printer to printers.json and connect to it."""
+        created = await asyncio.to_thread(self.registry.add, new)
+        self.sessions.apply(self.registry.printers)
+        return self.view(created.id)
+
+    async def update_printer(self, printer_id: str, patch: PrinterUpdate) -> View:
+        """Edit a printer; its session restarts when the URL, key or enabled flag changed."""
+        self.sessions.get(printer_id)
+        await asyncio.to_thread(self.registry.update, printer_id, patch)
+        self.sessions.apply(self.registry.printers)
+        return self.view(printer_id)
+
+    async def remove_printer(self, printer_id: str) -> None:
+        """Remove a printer from printers.json and disconnect from it."""
+        self.sessions.get(printer_id)
+        await asyncio.to_thread(self.registry.remove, printer_id)
+        self.sessions.apply(self.registry.printers)
+
+    def _on_file_change(self, printers: list[PrinterConfig]) -> None:
+        self.config_error = None
+        self.sessions.apply(printers)
+        self.hub.event({"type": "config", "ok": True, "message": "printers.json reloaded"})
+
+    def _on_file_error(self, error: ConfigError) -> None:
+        self.config_error = error.message
+        self.hub.event({"type": "config", "ok": False, "message": error.message})
+
+    # -- live state --------------------------------------------------------------------
+
+    def _render(self, printer_id: str) -> View | None:
+        return self.sessions.render(printer_id)
+
+    # -- actions -----------------------------------------------------------------------
+
+    async def dry_run(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        force: bool = False,
+    ) -> Verdict:
+        """What would happen: the rules (with the file's real metadata) and, when one is
+        configured, the advisor's warnings. Nothing is sent to the printer."""
+        printer = self.sessions.get(printer_id)
+        if action in NEEDS_LIMITS:
+            await printer.wait_for_limits(LIMITS_WAIT)
+        meta = await self._file_meta_for(printer, action, params)
+        printer_facts = facts(printer.config, printer.live)
+        verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
+        if verdict.blocked or self._advisor is None:
+            return verdict
+        advice = await advise(self._http, self._advisor, action, printer_facts, params, meta)
+        return combine(verdict, advice)
+
+    async def act(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        force: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Validate, then run ``action`` on one printer; raise a typed error on failure."""
+        params = dict(params or {})
+        verdict = await self.dry_run(printer_id, action, params, force)
+        raise_if_blocked(verdict, printer_id)
+        warnings = require_confirmation(verdict, confirm)
+        await execute(self.client(printer_id), action, params)
+        message = done_message(action, params)
+        self._announce(printer_id, action, message)
+        return ActionOutcome(printer_id, action, message, reasons=warnings)
+
+    async def act_many(
+        self,
+        printer_ids: list[str],
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        force: bool = False,
+        confirm: bool = False,
+    ) -> list[ActionOutcome]:
+        """One action on many printers at once; one outcome per printer, in order."""
+
+        async def one(printer_id: str) -> ActionOutcome:
+            try:
+                return await self.act(printer_id, action, params, force=force, confirm=confirm)
+            except KyberCoreError as exc:
+                return failed_outcome(printer_id, action, exc)
+
+        return list(await asyncio.gather(*(one(pid) for pid in dict.fromkeys(printer_ids))))
+
+    async def upload(
+        self,
+        printer_id: str,
+        filename: str,
+        content: bytes | BinaryIO,
+        *,
+        start: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Upload a file; with ``start``, validate it against the printer and print it."""
+        client = self.client(printer_id)
+        if start:
+            # Refuse before sending the bytes when the printer cannot start anything now.
+            printer = self.sessions.get(printer_id)
+            verdict = validate(
+                "start", facts(printer.config, printer.live), params={"filename": filename}
+            )
+            raise_if_blocked(verdict, printer_id)
+        await client.upload(filename, content)
+        outcome = ActionOutcome(printer_id, "upload", f"Uploaded {filename}.")
+        self._announce(printer_id, "upload", outcome.message)
+        if start:
+            started = await self.act(printer_id, "start", {"filename": filename}, confirm=confirm)
+            outcome.message += " " + started.message
+            outcome.reasons = started.reasons
+        return outcome
+
+    async def files(self, printer_id: str) -> list[dict[str, Any]]:
+        """The printer's G-code files, newest first."""
+        files = await self.client(printer_id).files_list()
+        return sorted(files, key=lambda f: f.get("modified", 0), reverse=True)
+
+    async def delete_file(self, printer_id: str, path: str) -> None:
+        """Delete a G-code file, unless it is the one being printed."""
+        printer = self.sessions.get(printer_id)
+        stats = printer.live.status.get("print_stats", {})
+        if stats.get("filename") == path and stats.get("state") in ("printing", "paused"):
+            raise ActionRejected(
+                f"{printer_id} is printing '{path}'. Cancel the print before deleting the file.",
+                code="file_in_use",
+            )
+        await self.client(printer_id).delete_file(path)
+        self._announce(printer_id, "delete_file", f"Deleted {path}.")
+
+    async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
+        """Moonraker's metadata of one file."""
+        return await self.client(printer_id).file_metadata(filename)
+
+    def _announce(self, printer_id: str, action: str, message: str) -> None:
+        event = {"type": "action", "printer": printer_id, "action": action, "ok": True}
+        self.hub.event({**event, "message": message})
+
+    async def _file_meta_for(
+        self, printer: FleetPrinter, action: str, params: Mapping[str, Any] | None
+    ) -> dict[str, Any] | None:
+        filename = (params or {}).get("filename")
+        if action != "start" or not isinstance(filename, str) or not filename:
+            return None
+        if printer.client is None or printer.live.connection != "online":
+            return None  # validation reports the connection problem
+        filename = safe_path(filename)
+        try:
+            return await printer.client.file_metadata(filename)
+        except MoonrakerRpcError as exc:
+            if exc.rpc_code == 404:
+                raise FileNotFound(
+                    f"{printer.config.id}: no file '{filename}' on the printer. "
+                    "Upload it first or pick one from the file list."
+                ) from exc
+            raise
+

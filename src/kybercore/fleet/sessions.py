@@ -1,0 +1,224 @@
+"""The fleet's printers: one Moonraker session per enabled printer and the live state it feeds.
+
+Each session reports what happens (status deltas, connection and Klippy changes, console
+lines) as events; :class:`Sessions` folds them into the printer's :class:`LivePrinter` and
+tells the hub which printers changed. Nothing here decides whether an action may run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Awaitable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import httpx
+
+from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse
+from kybercore.errors import PrinterError, UnknownPrinter
+from kybercore.fleet.hub import Hub
+from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    KlippyChanged,
+    Notification,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
+from kybercore.moonraker.link import Connect
+from kybercore.moonraker.objects import apply_status
+from kybercore.registry.models import PrinterConfig
+
+LAST_SEEN_STEP: Final = 5.0
+
+# Settings read once from Klippy's configfile when printers.json does not give them.
+_DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
+
+
+@dataclass
+class FleetPrinter:
+    """One printer of the fleet: its configuration, its Moonraker client, its live state."""
+
+    config: PrinterConfig
+    client: MoonrakerClient | None
+    """None while the printer is disabled."""
+    live: LivePrinter = field(default_factory=LivePrinter)
+    limits_read: asyncio.Event = field(default_factory=asyncio.Event)
+    """Set once Klippy's configfile was read (or could not be) since the last snapshot."""
+
+    async def wait_for_limits(self, timeout: float) -> None:
+        """Wait, at most ``timeout`` s, until the limits read after a (re)connect is done.
+
+        A printer is online ~300 ms before its configfile arrives; an action checked in
+        that window would go without its max-temp, volume and nozzle checks.
+        """
+        if self.live.connection == "online" and not self.limits_read.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.limits_read.wait(), timeout)
+
+
+class Sessions:
+    """The printers' sessions and live state, kept in step with printers.json."""
+
+    def __init__(self, http: httpx.AsyncClient, connect: Connect, hub: Hub) -> None:
+        self._http = http
+        self._connect = connect
+        self._hub = hub
+        self._printers: dict[str, FleetPrinter] = {}
+        self._background: set[asyncio.Task[Any]] = set()
+
+    def get(self, printer_id: str) -> FleetPrinter:
+        """The printer ``printer_id``; :class:`UnknownPrinter` when there is none."""
+        printer = self._printers.get(printer_id)
+        if printer is None:
+            raise UnknownPrinter(printer_id)
+        return printer
+
+    def all(self) -> list[FleetPrinter]:
+        """Every printer, in printers.json order."""
+        return list(self._printers.values())
+
+    def render(self, printer_id: str) -> View | None:
+        """The printer's fused view, or None once it is gone (the hub's renderer)."""
+        printer = self._printers.get(printer_id)
+        return None if printer is None else fuse(printer.config, printer.live)
+
+    def apply(self, printers: list[PrinterConfig]) -> None:
+        """Make the running sessions match ``printers`` (start, stop or restart them) and
+        publish the result at once, so the fleet list shows it when a request returns."""
+        wanted = {p.id: p for p in printers}
+        for printer_id in list(self._printers):
+            if printer_id not in wanted:
+                self._spawn(self._close(self._printers.pop(printer_id)))
+                self._hub.mark(printer_id)
+        for printer_id, config in wanted.items():
+            current = self._printers.get(printer_id)
+            if current is not None and not _needs_new_session(current.config, config):
+                current.config = config
+            else:
+                if current is not None:
+                    self._spawn(self._close(current))
+                self._printers[printer_id] = self._open(config)
+            self._hub.mark(printer_id)
+        self._hub.flush()
+
+    async def close(self) -> None:
+        """Close every session and stop background work."""
+        for task in list(self._background):
+            task.cancel()
+        await asyncio.gather(*(self._close(p) for p in self._printers.values()))
+        self._printers.clear()
+
+    def _open(self, config: PrinterConfig) -> FleetPrinter:
+        if not config.enabled:
+            return FleetPrinter(config, None, LivePrinter(connection="disabled"))
+        printer = FleetPrinter(config, None)
+        printer.client = MoonrakerClient(
+            config.moonraker_url,
+            self._http,
+            name=config.id,
+            api_key=config.api_key.get_secret_value() if config.api_key else None,
+            on_event=lambda event: self._on_event(printer, event),
+            connect=self._connect,
+        )
+        printer.client.start()
+        return printer
+
+    async def _close(self, printer: FleetPrinter) -> None:
+        if printer.client is not None:
+            await printer.client.close()
+
+    def _on_event(self, printer: FleetPrinter, event: SessionEvent) -> None:
+        live = printer.live
+        heard_before, live.updated_at = live.updated_at, time.time()
+        pid = printer.config.id
+        if isinstance(event, StatusDelta):
+            apply_status(live.status, event.delta)  # the live state is ours alone
+            self._follow_file(printer)
+        elif isinstance(event, StatusSnapshot):
+            live.status = dict(event.status)
+            self._follow_file(printer)
+            printer.limits_read.clear()
+            self._spawn(self._detect_capabilities(printer))
+        elif isinstance(event, ConnectionChanged):
+            live.connection = event.connection
+            live.connection_error = event.detail
+            self._hub.event(
+                {
+                    "type": "connection",
+                    "printer": pid,
+                    "connection": event.connection,
+                    "message": event.detail,
+                }
+            )
+        elif isinstance(event, KlippyChanged):
+            live.klippy_state = event.state
+            live.klippy_message = event.message
+            self._hub.event(
+                {"type": "klippy", "printer": pid, "state": event.state, "message": event.message}
+            )
+            if event.state in ("shutdown", "error"):
+                self._spawn(self._read_klippy_message(printer))
+        elif isinstance(event, Notification):
+            if event.method == "notify_gcode_response" and event.params:
+                self._hub.console(pid, str(event.params[0]))
+            # Moonraker's 1 s process stats prove the printer is alive even when nothing
+            # changes; let `updated_at` show that, at most every LAST_SEEN_STEP seconds.
+            if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
+                return
+        self._hub.mark(pid)
+
+    def _follow_file(self, printer: FleetPrinter) -> None:
+        """Fetch the metadata of a newly started file once (ETA, thumbnail)."""
+        filename = printer.live.status.get("print_stats", {}).get("filename") or ""
+        meta = printer.live.file_meta
+        if filename and (meta is None or meta.get("filename") != filename):
+            printer.live.file_meta = {"filename": filename}
+            self._spawn(self._load_file_meta(printer, filename))
+
+    async def _load_file_meta(self, printer: FleetPrinter, filename: str) -> None:
+        if printer.client is None:
+            return
+        with contextlib.suppress(PrinterError):
+            meta = await printer.client.file_metadata(filename)
+            printer.live.file_meta = {**meta, "filename": filename}
+            self._hub.mark(printer.config.id)
+
+    async def _detect_capabilities(self, printer: FleetPrinter) -> None:
+        if printer.client is None:
+            return
+        try:
+            with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
+                status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
+                printer.live.detected = detect_capabilities(status["configfile"]["settings"])
+                self._hub.mark(printer.config.id)
+        finally:
+            printer.limits_read.set()
+
+    async def _read_klippy_message(self, printer: FleetPrinter) -> None:
+        if printer.client is None:
+            return
+        with contextlib.suppress(PrinterError, KeyError):
+            info = await printer.client.printer_info()
+            printer.live.klippy_message = str(info.get("state_message", ""))
+            self._hub.mark(printer.config.id)
+
+    def _render(self, printer_id: str) -> View | None:
+        printer = self._printers.get(printer_id)
+        return None if printer is None else fuse(printer.config, printer.live)
+
+    def _spawn(self, work: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(work)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+
+def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
+    return (old.moonraker_url, old.api_key, old.enabled) != (
+        new.moonraker_url,
+        new.api_key,
+        new.enabled,
+    )

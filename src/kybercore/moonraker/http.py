@@ -1,0 +1,92 @@
+"""Moonraker over HTTP: the shared client, its timeouts, and what an answer means.
+
+A failed request becomes a typed :mod:`kybercore.errors` exception whose message says what
+happened and what to do.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import httpx
+import orjson
+
+from kybercore.errors import (
+    KlippyNotReady,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterError,
+)
+
+REQUEST_TIMEOUT: Final = httpx.Timeout(10.0, connect=3.0)
+# `/printer/gcode/script` answers only when the G-code has run: M109 or G28 take minutes.
+GCODE_TIMEOUT: Final = httpx.Timeout(600.0, connect=3.0)
+UPLOAD_TIMEOUT: Final = httpx.Timeout(300.0, connect=3.0)
+# Pause and cancel wait for the moves already queued (and a G28 in progress) to finish.
+ACTION_TIMEOUT: Final = httpx.Timeout(60.0, connect=3.0)
+
+
+def new_http_client() -> httpx.AsyncClient:
+    """The one HTTP client a process shares across all its printers."""
+    # trust_env=False: printers live on the LAN; a desktop proxy setting must not apply.
+    return httpx.AsyncClient(
+        timeout=REQUEST_TIMEOUT,
+        trust_env=False,
+        limits=httpx.Limits(max_connections=1000, max_keepalive_connections=200),
+    )
+
+
+def json_body(response: httpx.Response, printer: str) -> Any:
+    """The JSON body of a Moonraker answer; a typed error when it is not JSON."""
+    try:
+        return orjson.loads(response.content)
+    except orjson.JSONDecodeError:
+        raise MoonrakerRpcError(
+            response.status_code,
+            f"{response.request.url.host} answered {response.request.url.path} with something "
+            "that is not JSON. Is the URL really a Moonraker server?",
+            printer=printer,
+        ) from None
+
+
+def http_error(response: httpx.Response, path: str, printer: str) -> PrinterError:
+    """The typed error for a Moonraker answer that is not a success."""
+    status = response.status_code
+    try:
+        error = orjson.loads(response.content).get("error", {})
+        message = str(error.get("message", "")) if isinstance(error, dict) else str(error)
+    except (orjson.JSONDecodeError, AttributeError):
+        message = response.text[:200]
+    if status in (401, 403):
+        return PrinterAuthFailed(
+            f"Moonraker refused the request (HTTP {status}): the API key is missing or wrong. "
+            "Set the printer's api_key to the key from Moonraker's /access/api_key.",
+            printer=printer,
+        )
+    if path.startswith("/printer/") and (status == 404 or "klippy" in message.lower()):
+        # Klippy registers the /printer/* endpoints, so they 404 until it first connects;
+        # once known, they answer 503 "Klippy Host not connected" while it is away.
+        return KlippyNotReady(
+            "Klippy is not connected to Moonraker yet. Wait for it to start, or check "
+            "klippy.log on the printer.",
+            printer=printer,
+        )
+    return MoonrakerRpcError(status, message or response.reason_phrase, printer=printer)
+
+
+def transport_problem(base_url: str, exc: httpx.TransportError) -> str:
+    """What a failed connection means, in words a person can act on."""
+    causes = []
+    cause: BaseException | None = exc
+    while cause is not None:
+        causes.append(cause)
+        cause = cause.__cause__ or cause.__context__
+    lowered = " ".join(str(c) for c in causes).lower()
+    if any(isinstance(c, ConnectionRefusedError) for c in causes) or "refused" in lowered:
+        return f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
+    if "name or service not known" in lowered or "name resolution" in lowered:
+        return (
+            f"the host name in {base_url} cannot be resolved. Check the printer's URL "
+            "or use its IP address."
+        )
+    return f"cannot reach Moonraker at {base_url} ({exc or type(exc).__name__}). Retry later."

@@ -1,0 +1,406 @@
+"""One long-lived Moonraker WebSocket session: JSON-RPC calls, subscription, reconnects.
+
+The session identifies itself as an agent, waits while Klippy starts, subscribes to the
+objects it was given and hands every notification to a callback. When the socket drops,
+every pending call fails at once with :class:`PrinterUnreachable` and the session
+reconnects by itself, forever, with capped exponential backoff and jitter; after each
+reconnect (and after ``notify_klippy_ready``) it subscribes again. The socket itself is
+:mod:`kybercore.moonraker.link`; what the session reports is in
+:mod:`kybercore.moonraker.events`, its reconnect delays in :mod:`kybercore.moonraker.backoff`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import time
+from collections.abc import Mapping
+from typing import Any, Final
+
+import orjson
+import picows
+
+from kybercore.aio import cancel_and_wait
+from kybercore.errors import (
+    KlippyNotReady,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterError,
+    PrinterTimeout,
+    PrinterUnreachable,
+)
+from kybercore.moonraker.backoff import Backoff
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    EventCallback,
+    KlippyChanged,
+    Notification,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
+from kybercore.moonraker.link import Connect, LinkLost, MoonrakerLink, open_link
+from kybercore.moonraker.objects import Status, klippy_state_after
+
+log = logging.getLogger(__name__)
+
+# Enough for Klippy's `configfile` object, small enough that a runaway frame cannot eat memory.
+MAX_FRAME_BYTES: Final = 8 * 1024 * 1024
+# A silent peer is noticed within PING_INTERVAL + PING_TIMEOUT seconds: after PING_INTERVAL
+# without a byte from it, a ping; no pong within PING_TIMEOUT cuts the link.
+PING_INTERVAL: Final = 5.0
+PING_TIMEOUT: Final = 5.0
+# How long a close frame we send waits for Moonraker's answer before the socket is cut.
+# (A silent peer is cut by the keepalive itself, without waiting.)
+CLOSE_TIMEOUT: Final = 1.0
+# TCP connect plus WebSocket upgrade: a peer that accepts TCP and stalls must not hang us.
+OPEN_TIMEOUT: Final = 5.0
+CALL_TIMEOUT: Final = 10.0
+# While Klippy starts, Moonraker's guide asks clients to poll server.info every 2 s.
+KLIPPY_POLL_SECONDS: Final = 2.0
+# Wrong credentials will not fix themselves: retry slowly so Moonraker is not hammered.
+AUTH_RETRY_SECONDS: Final = 60.0
+_SUBSCRIBABLE_STATES: Final = frozenset({"ready", "shutdown", "error"})
+
+
+class MoonrakerSession:
+    """The WebSocket half of a printer's Moonraker client."""
+
+    def __init__(
+        self,
+        ws_url: str,
+        *,
+        name: str,
+        api_key: str | None,
+        subscription: Mapping[str, list[str] | None],
+        on_event: EventCallback,
+        client_name: str,
+        version: str,
+        connect: Connect = picows.ws_connect,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.ws_url = ws_url
+        self.name = name
+        self._api_key = api_key
+        self._subscription = dict(subscription)
+        self._on_event = on_event
+        self._client_name = client_name
+        self._version = version
+        self._connect = connect
+        self._backoff = backoff or Backoff()
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future[Any]] = {}
+        self._methods: dict[int, str] = {}
+        self._link: MoonrakerLink | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._klippy_event = asyncio.Event()
+        self._up = False
+        """This connection got as far as a valid ``server.info``: Moonraker really answered."""
+        self.connection = "connecting"
+        self.klippy_state = "disconnected"
+        self.last_error = ""
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the background task that keeps the session connected."""
+        if self._task is None or self._task.done():
+            self._task = asyncio.create_task(self._run(), name=f"moonraker-session:{self.name}")
+
+    async def stop(self) -> None:
+        """Close the socket and stop reconnecting."""
+        task, self._task = self._task, None
+        await cancel_and_wait(task)
+
+    @property
+    def connected(self) -> bool:
+        """Whether the socket is open now (calls can go over it)."""
+        return self._link is not None
+
+    @property
+    def running(self) -> bool:
+        """Whether the background task is alive."""
+        return self._task is not None and not self._task.done()
+
+    # -- JSON-RPC ----------------------------------------------------------------------
+
+    async def call(
+        self, method: str, params: Mapping[str, Any] | None = None, timeout: float = CALL_TIMEOUT
+    ) -> Any:
+        """Send one JSON-RPC request over the socket and return its ``result``."""
+        link = self._link
+        if link is None:
+            raise PrinterUnreachable(
+                f"not connected to Moonraker at {self.ws_url} ({self.last_error or 'connecting'})",
+                printer=self.name,
+            )
+        req_id = next(self._ids)
+        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        self._pending[req_id] = future
+        self._methods[req_id] = method
+        request: dict[str, Any] = {"jsonrpc": "2.0", "method": method, "id": req_id}
+        if params is not None:
+            request["params"] = dict(params)
+        try:
+            link.send(orjson.dumps(request))
+            return await asyncio.wait_for(future, timeout)
+        except TimeoutError as exc:
+            raise PrinterTimeout(
+                f"Moonraker did not answer '{method}' within {timeout:g} s", printer=self.name
+            ) from exc
+        finally:
+            self._pending.pop(req_id, None)
+            self._methods.pop(req_id, None)
+
+    async def alive(self, timeout: float) -> bool | None:
+        """Whether Moonraker answers a ping within ``timeout`` s right now.
+
+        ``False`` only on evidence that it hangs (a ping on an open socket went unanswered);
+        ``None`` when there is no open socket to ask. Moonraker answers pings even while a
+        long G-code runs, so this tells a slow command from a frozen host.
+        """
+        link = self._link
+        return None if link is None else await link.ping(timeout)
+
+    async def resubscribe(self) -> None:
+        """Subscribe again (for example after changing what to watch)."""
+        result = await self.call("printer.objects.subscribe", {"objects": self._subscription})
+        status = result.get("status") if isinstance(result, dict) else None
+        if not isinstance(status, dict):
+            raise self._malformed("printer.objects.subscribe", "no 'status' object")
+        self._emit(StatusSnapshot(status=status_objects(status)))
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _malformed(self, method: str, why: str) -> MoonrakerRpcError:
+        return MoonrakerRpcError(
+            -32603,
+            f"unexpected answer to '{method}' ({why}). Is {self.ws_url} really Moonraker?",
+            printer=self.name,
+        )
+
+    def _emit(self, event: SessionEvent) -> None:
+        """Hand an event to the owner; its bugs are logged, never allowed to kill the link."""
+        try:
+            self._on_event(event)
+        except Exception:
+            log.exception("%s: the session's event handler failed on %s", self.name, event)
+
+    def _unreachable(self, why: str) -> PrinterUnreachable:
+        return PrinterUnreachable(
+            f"lost the connection to Moonraker at {self.ws_url}: {why}. "
+            "KyberCore reconnects by itself; retry when the printer is back online.",
+            printer=self.name,
+        )
+
+    def _set_connection(self, connection: str, detail: str = "") -> None:
+        if connection != self.connection or detail != self.last_error:
+            self.connection = connection
+            self.last_error = detail
+            self._emit(ConnectionChanged(connection, detail))
+
+    def _set_klippy(self, state: str, message: str = "") -> None:
+        if state != self.klippy_state:
+            self.klippy_state = state
+            self._emit(KlippyChanged(state, message))
+
+    async def _run(self) -> None:
+        while True:
+            started = time.monotonic()
+            connected_for = 0.0
+            retry_after: float | None = None
+            peer_left = False
+            self._up = False
+            link: MoonrakerLink | None = None
+            try:
+                link = await open_link(
+                    self.ws_url,
+                    name=self.name,
+                    on_message=self._dispatch,
+                    headers={"X-Api-Key": self._api_key} if self._api_key else {},
+                    connect=self._connect,
+                    open_timeout=OPEN_TIMEOUT,
+                    ping_interval=PING_INTERVAL,
+                    ping_timeout=PING_TIMEOUT,
+                    max_bytes=MAX_FRAME_BYTES,
+                )
+                started = time.monotonic()
+                await self._serve(link)
+            except asyncio.CancelledError:
+                self._drop("KyberCore is stopping this session")
+                raise
+            except picows.WSInvalidStatusError as exc:
+                status = int(exc.response.status) if exc.response else 0
+                if status in (401, 403):
+                    retry_after = AUTH_RETRY_SECONDS
+                    self._drop(f"Moonraker refused the API key (HTTP {status})", "auth_failed")
+                else:
+                    self._drop(f"Moonraker answered the WebSocket upgrade with HTTP {status}")
+            except PrinterAuthFailed as exc:
+                retry_after = AUTH_RETRY_SECONDS
+                self._drop(exc.message, "auth_failed")
+            except LinkLost as exc:
+                # Moonraker went away (not: we closed on a fault such as an oversized frame).
+                peer_left = exc.by_peer
+                self._drop(exc.why)
+            except (OSError, TimeoutError, picows.WSError, PrinterError) as exc:
+                # OSError: Moonraker's socket refused or reset us (a restart, most likely).
+                peer_left = isinstance(exc, OSError)
+                self._drop(_describe(exc))
+            except Exception as exc:
+                # A bug, or a Moonraker answer no one foresaw: the session must outlive it
+                # (a dead task would leave the printer shown "online" and frozen forever).
+                log.exception("%s: unexpected error in the Moonraker session", self.name)
+                self._drop(f"unexpected error in KyberCore's session ({type(exc).__name__})")
+            else:
+                peer_left = True
+                self._drop("Moonraker closed the connection")
+            finally:
+                # After _drop: pending calls fail at once, not after the goodbye.
+                if link is not None:
+                    await link.close(CLOSE_TIMEOUT)
+            if peer_left and self._up:
+                # A healthy session ended by Moonraker (a restart): come back at once, however
+                # many restarts came before. Faults we detected keep backing off.
+                self._backoff.reset()
+            connected_for = time.monotonic() - started
+            delay = self._backoff.next_delay(connected_for)
+            await asyncio.sleep(retry_after if retry_after is not None else delay)
+
+    def _drop(self, why: str, connection: str = "offline") -> None:
+        """Forget the socket and fail every pending call at once."""
+        self._link = None
+        error = self._unreachable(why)
+        for future in self._pending.values():
+            if not future.done():
+                future.set_exception(error)
+        self._pending.clear()
+        self._set_klippy("disconnected")
+        self._set_connection(connection, why)
+
+    async def _serve(self, link: MoonrakerLink) -> None:
+        """Until the link is lost (:class:`LinkLost`) or following Klippy fails."""
+        self._link = link
+        closed = asyncio.create_task(link.wait_closed(), name=f"moonraker-link:{self.name}")
+        follower = asyncio.create_task(self._identify_and_follow(), name=f"klippy:{self.name}")
+        try:
+            await asyncio.wait({closed, follower}, return_when=asyncio.FIRST_COMPLETED)
+            for task in (follower, closed):
+                if task.done():
+                    task.result()
+        finally:
+            self._link = None
+            closed.cancel()
+            follower.cancel()
+            await asyncio.gather(closed, follower, return_exceptions=True)
+
+    async def _identify_and_follow(self) -> None:
+        params: dict[str, Any] = {
+            "client_name": self._client_name,
+            "version": self._version,
+            "type": "agent",
+            "url": "urn:kybercore",
+        }
+        if self._api_key:
+            params["api_key"] = self._api_key
+        try:
+            await self.call("server.connection.identify", params)
+        except MoonrakerRpcError as exc:
+            # Agent names are unique per Moonraker; a stale socket of ours (or another
+            # KyberCore) may hold it. Moonraker still accepts this connection as a client.
+            if "already registered" not in exc.detail:
+                raise
+            log.info("%s: agent name in use, continuing as a plain client", self.name)
+        self._set_connection("online")
+        await self._follow_klippy()
+
+    async def _follow_klippy(self) -> None:
+        """Poll ``server.info`` until Klippy can be subscribed to, then wait for news."""
+        while True:
+            self._klippy_event.clear()
+            info = await self.call("server.info")
+            if not isinstance(info, dict):
+                raise self._malformed("server.info", "not an object")
+            self._up = True
+            state = str(info.get("klippy_state", "disconnected"))
+            if info.get("klippy_connected") and state in _SUBSCRIBABLE_STATES:
+                try:
+                    await self.resubscribe()
+                except (KlippyNotReady, MoonrakerRpcError) as exc:
+                    log.info("%s: subscribe failed, retrying: %s", self.name, exc)
+                    await asyncio.sleep(KLIPPY_POLL_SECONDS)
+                    continue
+                self._set_klippy(state)
+                await self._klippy_event.wait()
+            else:
+                self._set_klippy(state)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
+
+    def _dispatch(self, message: dict[str, Any]) -> None:
+        if "id" in message and ("result" in message or "error" in message):
+            future = self._pending.get(message["id"]) if isinstance(message["id"], int) else None
+            if future is None or future.done():
+                return
+            error = message.get("error")
+            if error is None:
+                future.set_result(message.get("result"))
+            else:
+                future.set_exception(
+                    _rpc_error(error, self._methods.get(message["id"], ""), self.name)
+                )
+            return
+        method = message.get("method")
+        if not isinstance(method, str):
+            return
+        params = message.get("params")
+        params = params if isinstance(params, list) else []
+        if method == "notify_status_update":
+            if params and isinstance(params[0], dict):
+                eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
+                self._emit(StatusDelta(delta=status_objects(params[0]), eventtime=eventtime))
+            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            return
+        if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
+            self._klippy_event.set()
+        if method.startswith("notify_klippy_"):
+            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            return
+        self._emit(Notification(method, params))
+
+
+def status_objects(status: Mapping[str, Any]) -> Status:
+    """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
+    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
+    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
+
+
+def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
+    raw_code = error.get("code") if isinstance(error, dict) else None
+    code = raw_code if isinstance(raw_code, int) and not isinstance(raw_code, bool) else -1
+    text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
+    # Moonraker answers a bad key in `identify` with -32602 "Invalid API Key".
+    if code in (401, 403) or "api key" in text.lower() or "unauthorized" in text.lower():
+        return PrinterAuthFailed(
+            f"Moonraker refused the API key ({text}). Fix the printer's api_key.", printer=printer
+        )
+    # Klippy registers the printer.* methods, so they are "not found" until it connects.
+    if code == -32601 and method.startswith("printer."):
+        return KlippyNotReady(
+            "Klippy is not connected to Moonraker; wait for it or restart the firmware.",
+            printer=printer,
+        )
+    return MoonrakerRpcError(code, text, printer=printer)
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused (is Moonraker running on that port?)"
+    if isinstance(exc, TimeoutError):
+        return "timed out while connecting"
+    if isinstance(exc, PrinterError):
+        return exc.message
+    text = str(exc) or type(exc).__name__
+    return text

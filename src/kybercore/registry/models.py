@@ -1,0 +1,236 @@
+"""The models of one printer's configuration, as stored in printers.json and sent over the API.
+
+Pure data and validation, no I/O: :mod:`kybercore.registry.store` reads and writes them.
+
+- :class:`PrinterConfig` is one stored printer, API key included (as a ``SecretStr``).
+- :class:`PrinterPublic` is what every response shows: ``api_key_set`` instead of the key.
+- :class:`PrinterCreate` and :class:`PrinterUpdate` are the inputs of the API and the CLI;
+  ``PrinterUpdate`` has PATCH semantics (omitted fields keep their value).
+"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from typing import Annotated, Any, Self
+from urllib.parse import urlsplit
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    SecretStr,
+    StringConstraints,
+    model_validator,
+)
+
+SLUG_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+MAX_URL_LENGTH = 2048
+
+
+def _check_url(url: str) -> str:
+    """Accept an http(s) URL with a host and nothing secret or variable; normalize it."""
+    if any(c.isspace() or ord(c) < 32 for c in url):
+        raise ValueError("the URL must not contain spaces or control characters")
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 -- property access validates the port (raises ValueError)
+    except ValueError as exc:
+        raise ValueError(f"not a valid URL ({exc})") from None
+    scheme = parts.scheme.lower()
+    if scheme not in ("http", "https"):
+        raise ValueError(
+            f"the URL must start with http:// or https://, not '{parts.scheme}:'"
+            if parts.scheme
+            else "the URL must start with http:// or https://, e.g. http://192.168.1.50:7125"
+        )
+    if "@" in parts.netloc:
+        raise ValueError("the URL must not contain credentials; set the printer's api_key instead")
+    if not parts.hostname:
+        raise ValueError("the URL has no host, e.g. http://192.168.1.50:7125")
+    if parts.query or parts.fragment or url.endswith(("?", "#")):
+        raise ValueError("the URL must not have a query string or fragment")
+    # A path is kept: Moonraker may sit behind a reverse proxy under a prefix.
+    return f"{scheme}://{parts.netloc.lower()}{parts.path.rstrip('/')}"
+
+
+def _dedupe(tags: list[str]) -> list[str]:
+    return list(dict.fromkeys(tags))
+
+
+def _api_key_input(value: object) -> object:
+    # "" means "no key" everywhere: in the file, on create, and (as a clear) on update.
+    if value == "":
+        return None
+    # The key goes into an X-Api-Key header: printable ASCII, no spaces.
+    if isinstance(value, str) and not all("!" <= c <= "~" for c in value):
+        raise ValueError("the API key must be printable ASCII without spaces")
+    return value
+
+
+Slug = Annotated[str, StringConstraints(pattern=SLUG_PATTERN)]
+Url = Annotated[str, StringConstraints(max_length=MAX_URL_LENGTH), AfterValidator(_check_url)]
+Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100)]
+ShortText = Annotated[str, StringConstraints(strip_whitespace=True, max_length=100)]
+Notes = Annotated[str, StringConstraints(max_length=2000)]
+Tag = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=32)]
+Tags = Annotated[list[Tag], Field(max_length=32), AfterValidator(_dedupe)]
+ApiKey = Annotated[
+    Annotated[SecretStr, StringConstraints(max_length=256)] | None,
+    BeforeValidator(_api_key_input),
+]
+
+_DOC = {
+    "id": "Stable identifier: lowercase letters, digits, '-' and '_', 1-64 characters, "
+    "starting with a letter or digit. Used in URLs; cannot be changed.",
+    "name": "Name shown to people, 1-100 characters.",
+    "model": "Printer model, e.g. 'Voron 2.4'.",
+    "location": "Where the printer is, e.g. 'Room B, shelf 2'.",
+    "tags": "Short labels (1-32 characters each, at most 32) for grouping; duplicates dropped.",
+    "notes": "Free text for the operators, up to 2000 characters.",
+    "moonraker_url": "Moonraker base URL: http or https, host, optional port and path "
+    "prefix; no credentials, query or fragment. Stored without trailing slash.",
+    "api_key": "Moonraker API key, sent as X-Api-Key. Write-only: never returned.",
+    "enabled": "Whether KyberCore connects to this printer.",
+    "capabilities": "Limits used to validate actions; missing values are read from "
+    "Klippy's configfile.",
+}
+
+
+class _Model(BaseModel):
+    # hide_input_in_errors: an error about an api_key must not print the key.
+    model_config = ConfigDict(strict=True, extra="forbid", hide_input_in_errors=True)
+
+
+class BuildVolume(_Model):
+    """Printable volume in millimetres."""
+
+    x: float = Field(gt=0, le=10_000, description="Width (X) in mm.")
+    y: float = Field(gt=0, le=10_000, description="Depth (Y) in mm.")
+    z: float = Field(gt=0, le=10_000, description="Height (Z) in mm.")
+
+
+class Capabilities(_Model):
+    """What the printer can do; every field optional, read from Klippy when missing."""
+
+    build_volume: BuildVolume | None = Field(default=None, description="Build volume in mm.")
+    nozzle_diameter: float | None = Field(
+        default=None, gt=0, le=5, description="Nozzle diameter in mm, e.g. 0.4."
+    )
+    material: Tag | None = Field(default=None, description="Loaded filament, e.g. 'PLA'.")
+    max_extruder_temp: float | None = Field(
+        default=None, gt=0, le=600, description="Highest hotend temperature allowed, in °C."
+    )
+    max_bed_temp: float | None = Field(
+        default=None, gt=0, le=300, description="Highest bed temperature allowed, in °C."
+    )
+
+
+class _PrinterFields(_Model):
+    """The fields a stored printer and a new one share (``id`` first, as in the file)."""
+
+    id: Slug = Field(description=_DOC["id"])
+    name: Name = Field(description=_DOC["name"])
+    model: ShortText = Field(default="", description=_DOC["model"])
+    location: ShortText = Field(default="", description=_DOC["location"])
+    tags: Tags = Field(default_factory=list, description=_DOC["tags"])
+    notes: Notes = Field(default="", description=_DOC["notes"])
+    moonraker_url: Url = Field(description=_DOC["moonraker_url"])
+    api_key: ApiKey = Field(default=None, description=_DOC["api_key"])
+    enabled: bool = Field(default=True, description=_DOC["enabled"])
+    capabilities: Capabilities = Field(
+        default_factory=Capabilities, description=_DOC["capabilities"]
+    )
+
+
+class PrinterConfig(_PrinterFields):
+    """One printer as stored in printers.json, API key included."""
+
+    def public(self) -> PrinterPublic:
+        """The view every API response and CLI listing uses: no API key, only whether one is set."""
+        fields = {name: getattr(self, name) for name in PrinterConfig.model_fields}
+        del fields["api_key"]
+        return PrinterPublic(**fields, api_key_set=self.api_key is not None)
+
+    def to_file_dict(self) -> dict[str, Any]:
+        """The JSON object stored in printers.json: every field, the API key in clear."""
+        data = self.model_dump(mode="json")
+        data["api_key"] = self.api_key.get_secret_value() if self.api_key else None
+        return data
+
+
+class PrinterPublic(_Model):
+    """A printer's configuration as shown to clients: the API key is replaced by a flag."""
+
+    id: Slug = Field(description=_DOC["id"])
+    name: Name = Field(description=_DOC["name"])
+    model: ShortText = Field(description=_DOC["model"])
+    location: ShortText = Field(description=_DOC["location"])
+    tags: Tags = Field(description=_DOC["tags"])
+    notes: Notes = Field(description=_DOC["notes"])
+    moonraker_url: Url = Field(description=_DOC["moonraker_url"])
+    api_key_set: bool = Field(description="Whether an API key is stored for this printer.")
+    enabled: bool = Field(description=_DOC["enabled"])
+    capabilities: Capabilities = Field(description=_DOC["capabilities"])
+
+
+class PrinterCreate(_PrinterFields):
+    """A new printer. Without ``id``, one is derived from ``name``."""
+
+    id: Slug | None = Field(  # type: ignore[assignment]  # optional here, required stored
+        default=None, description=_DOC["id"] + " Derived from name if absent."
+    )
+
+    def to_config(self, printer_id: str) -> PrinterConfig:
+        """The stored printer, under ``printer_id`` (the given id or one derived from the name)."""
+        fields = {name: getattr(self, name) for name in PrinterCreate.model_fields}
+        return PrinterConfig(**{**fields, "id": printer_id})
+
+
+class PrinterUpdate(_Model):
+    """Changes to a printer (PATCH): omitted fields keep their value.
+
+    ``api_key`` null or "" removes the key. ``capabilities`` is merged field by field: a
+    capability given as null is removed, one not given is kept.
+    """
+
+    name: Name | None = Field(default=None, description=_DOC["name"])
+    model: ShortText | None = Field(default=None, description=_DOC["model"])
+    location: ShortText | None = Field(default=None, description=_DOC["location"])
+    tags: Tags | None = Field(default=None, description=_DOC["tags"])
+    notes: Notes | None = Field(default=None, description=_DOC["notes"])
+    moonraker_url: Url | None = Field(default=None, description=_DOC["moonraker_url"])
+    api_key: ApiKey = Field(default=None, description=_DOC["api_key"] + " null or '' removes it.")
+    enabled: bool | None = Field(default=None, description=_DOC["enabled"])
+    capabilities: Capabilities | None = Field(
+        default=None, description=_DOC["capabilities"] + " Merged field by field."
+    )
+
+    @model_validator(mode="after")
+    def _only_api_key_nullable(self) -> Self:
+        # null means "remove" for the key; for any other field it is a mistake, not "keep".
+        for name in self.model_fields_set - {"api_key"}:
+            if getattr(self, name) is None:
+                raise ValueError(f"'{name}' cannot be null; leave it out to keep its value")
+        return self
+
+    def apply(self, current: PrinterConfig) -> PrinterConfig:
+        """``current`` with these changes, validated again as a whole."""
+        fields = {name: getattr(current, name) for name in PrinterConfig.model_fields}
+        for name in self.model_fields_set:
+            fields[name] = getattr(self, name)
+        if self.capabilities is not None:
+            caps = {name: getattr(current.capabilities, name) for name in Capabilities.model_fields}
+            for name in self.capabilities.model_fields_set:
+                caps[name] = getattr(self.capabilities, name)
+            fields["capabilities"] = Capabilities(**caps)
+        return PrinterConfig(**fields)
+
+
+def slugify(name: str) -> str:
+    """A valid id from a display name: 'Impresora Ñandú #2' -> 'impresora-nandu-2'."""
+    ascii_name = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode()
+    slug = re.sub(r"[^a-z0-9]+", "-", ascii_name.lower()).strip("-")[:64].rstrip("-")
+    return slug or "printer"

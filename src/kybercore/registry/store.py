@@ -1,0 +1,304 @@
+"""printers.json: read, validate, write atomically, and notice edits made on disk.
+
+The format lives in :mod:`kybercore.registry.format`, the models in
+:mod:`kybercore.registry.models`; this module does the I/O.
+
+- A file that does not parse or validate raises :class:`ConfigError` naming the file, line,
+  column and reason, and is never overwritten.
+- Writes go to a temp file in the same folder (fsync), the old file is kept as
+  ``printers.json.bak``, then ``os.replace`` and an fsync of the folder: a crash at any point
+  leaves either the old or the new file, whole.
+- Every mutation is read-modify-write under a ``threading.Lock`` and a cross-process
+  ``filelock`` on ``printers.json.lock``, so the server and the CLI writing at once lose nothing.
+
+All methods are blocking; async code calls them through ``asyncio.to_thread``, except
+:meth:`PrinterRegistry.watch`, which is a coroutine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import logging
+import os
+import shutil
+import tempfile
+import threading
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Final
+
+import filelock
+
+from kybercore.errors import ConfigError, InvalidInput, UnknownPrinter
+from kybercore.registry.format import backup_path, dump_printers, parse_printers
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate, slugify
+
+log = logging.getLogger(__name__)
+
+LOCK_TIMEOUT: Final = 10.0
+"""Seconds to wait for another process's write before giving up."""
+
+Signature = tuple[int, int, int] | None
+"""(mtime_ns, size, inode) of the file, None when it does not exist."""
+
+OnChange = Callable[[list[PrinterConfig]], Awaitable[None] | None]
+OnError = Callable[[ConfigError], Awaitable[None] | None]
+
+
+def default_printers_path() -> Path:
+    """``$KYBERCORE_PRINTERS`` if set, else ``printers.json`` in the working directory."""
+    return Path(os.environ.get("KYBERCORE_PRINTERS") or "printers.json")
+
+
+def read_printers(path: Path) -> list[PrinterConfig]:
+    """The printers stored in ``path``; an empty fleet if it does not exist.
+
+    Raises :class:`ConfigError` (file, line, column, reason, what to do) if it is unusable.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return []
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(
+            f"{path}: cannot be read ({exc}). Check the file and its permissions."
+        ) from None
+    return parse_printers(text, path)
+
+
+def write_printers(path: Path, printers: list[PrinterConfig]) -> None:
+    """Replace ``path`` atomically with ``printers``, keeping the old file as ``.bak``.
+
+    Does not lock: callers hold the registry's locks. On any failure the old file is intact
+    and the temp file is removed.
+    """
+    data = dump_printers(printers)
+    # mkstemp creates the file 0600: it holds API keys.
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = Path(tmp_name)
+    try:
+        with os.fdopen(fd, "wb") as tmp_file:
+            tmp_file.write(data)
+            tmp_file.flush()
+            os.fsync(tmp_file.fileno())
+        if path.exists():
+            _backup(path)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _backup(path: Path) -> None:
+    """Make ``path.bak`` the current ``path``, atomically (a hardlink needs no data copy)."""
+    bak_tmp = path.with_name(f".{path.name}.bak.tmp")
+    bak_tmp.unlink(missing_ok=True)
+    try:
+        os.link(path, bak_tmp)
+    except OSError:  # a filesystem without hardlinks
+        shutil.copy2(path, bak_tmp)
+    os.replace(bak_tmp, backup_path(path))
+
+
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _signature(path: Path) -> Signature:
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return (st.st_mtime_ns, st.st_size, st.st_ino)
+
+
+class PrinterRegistry:
+    """The fleet's printers.json, with the last good configuration kept in memory.
+
+    :meth:`reload` reads the file; :attr:`printers` is the last list that
+    validated. Mutations re-read the file under the locks, so they never lose another
+    process's write, and refuse to touch a file that does not validate.
+    """
+
+    def __init__(self, path: Path | str | None = None) -> None:
+        self.path = Path(path) if path is not None else default_printers_path()
+        self.last_error: str | None = None
+        """Why the last reload failed; None once the file is good again."""
+        self._printers: list[PrinterConfig] = []
+        self._seen: Signature = None
+        self._lock = threading.Lock()
+        self._file_lock = filelock.FileLock(
+            self.path.with_name(self.path.name + ".lock"), timeout=LOCK_TIMEOUT
+        )
+
+    @property
+    def printers(self) -> list[PrinterConfig]:
+        """The last good configuration (a copy)."""
+        with self._lock:
+            return list(self._printers)
+
+    def get(self, printer_id: str) -> PrinterConfig:
+        """The printer ``printer_id`` from the last good configuration, or UnknownPrinter."""
+        for printer in self.printers:
+            if printer.id == printer_id:
+                return printer
+        raise UnknownPrinter(printer_id)
+
+    def changed(self) -> bool:
+        """Whether the file changed on disk since it was last read or written (one stat)."""
+        with self._lock:
+            return _signature(self.path) != self._seen
+
+    def reload(self) -> list[PrinterConfig]:
+        """Read the file (at start-up, or again after :meth:`changed`) and return the list.
+
+        On ConfigError the last good configuration stays in :attr:`printers` and the reason
+        in :attr:`last_error`; the same broken file is not reported again by :meth:`changed`.
+        """
+        with self._lock:
+            # Stat before reading: an edit landing during the read shows up on the next check.
+            self._seen = _signature(self.path)
+            try:
+                printers = read_printers(self.path)
+            except ConfigError as exc:
+                self.last_error = exc.message
+                raise
+            self._printers = printers
+            self.last_error = None
+            return list(printers)
+
+    def add(self, new: PrinterCreate) -> PrinterConfig:
+        """Add a printer and return it as stored.
+
+        A given id that exists raises InvalidInput; an id derived from the name gets a
+        ``-2``, ``-3``... suffix instead.
+        """
+
+        def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
+            taken = {p.id for p in printers}
+            if new.id is not None and new.id in taken:
+                english = (
+                    f"A printer with id '{new.id}' already exists. Choose another id, or "
+                    "edit the existing printer."
+                )
+                # The dashboard shows reasons in its language; this one has no other source.
+                spanish = (
+                    f"Ya existe una impresora con el id '{new.id}'. Elige otro id o edita "
+                    "la impresora existente."
+                )
+                reason = {"code": "id_taken", "level": "block", "category": "input"}
+                raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
+            printer = new.to_config(new.id or _free_id(slugify(new.name), taken))
+            printers.append(printer)
+            return printer
+
+        return self._mutate(mutate)
+
+    def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
+        """Apply ``patch`` to printer ``printer_id`` and return it as stored."""
+
+        def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
+            index = _index(printers, printer_id)
+            printers[index] = patch.apply(printers[index])
+            return printers[index]
+
+        return self._mutate(mutate)
+
+    def remove(self, printer_id: str) -> PrinterConfig:
+        """Remove printer ``printer_id`` and return what it was."""
+        return self._mutate(lambda printers: printers.pop(_index(printers, printer_id)))
+
+    def _mutate(self, change: Callable[[list[PrinterConfig]], PrinterConfig]) -> PrinterConfig:
+        """Read-modify-write under both locks; the in-memory list follows the file."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with self._locked():
+                before = _signature(self.path)
+                printers = read_printers(self.path)
+                result = change(printers)
+                _remove_stale_temp_files(self.path)
+                write_printers(self.path, printers)
+                self._printers = printers
+                self.last_error = None
+                # If someone else edited the file since we last looked, leave _seen stale so
+                # watch() still reports the merged result; otherwise this write is ours alone.
+                if before == self._seen:
+                    self._seen = _signature(self.path)
+                return result
+        except OSError as exc:
+            raise ConfigError(
+                f"{self.path}: cannot be written ({exc}). Check that its folder exists and "
+                "is writable; the file was not changed."
+            ) from exc
+
+    @contextmanager
+    def _locked(self) -> Iterator[None]:
+        """Both locks: threads of this process, then other processes."""
+        with self._lock:
+            try:
+                self._file_lock.acquire()
+            except filelock.Timeout:
+                raise ConfigError(
+                    f"{self.path}: another process has held {self._file_lock.lock_file} for "
+                    f"{LOCK_TIMEOUT:.0f} s. Retry; if it persists, look for a stuck kybercore."
+                ) from None
+            try:
+                yield
+            finally:
+                self._file_lock.release()
+
+    async def watch(self, on_change: OnChange, on_error: OnError, interval: float = 1.0) -> None:
+        """Poll the file forever: ``on_change(printers)`` after a good edit on disk,
+        ``on_error(ConfigError)`` after a broken one (the last good list is kept).
+
+        Writes made through this registry are not reported unless they merged someone
+        else's edit; the caller acts on their return value. Callbacks may be sync or async.
+        Run it as a task and cancel it to stop.
+        """
+        while True:
+            await asyncio.sleep(interval)
+            if not await asyncio.to_thread(self.changed):
+                continue
+            try:
+                printers = await asyncio.to_thread(self.reload)
+            except ConfigError as exc:
+                log.warning("printers.json edit rejected: %s", exc.message)
+                await _call(on_error, exc)
+            else:
+                log.info("printers.json changed on disk: %d printers", len(printers))
+                await _call(on_change, printers)
+
+
+async def _call(callback: Callable[[Any], Awaitable[None] | None], arg: Any) -> None:
+    result = callback(arg)
+    if inspect.isawaitable(result):
+        await result
+
+
+def _index(printers: list[PrinterConfig], printer_id: str) -> int:
+    for index, printer in enumerate(printers):
+        if printer.id == printer_id:
+            return index
+    raise UnknownPrinter(printer_id)
+
+
+def _free_id(base: str, taken: set[str]) -> str:
+    candidate, n = base, 1
+    while candidate in taken:
+        n += 1
+        suffix = f"-{n}"
+        candidate = base[: 64 - len(suffix)] + suffix
+    return candidate
+
+
+def _remove_stale_temp_files(path: Path) -> None:
+    # Left by a writer killed mid-write; safe to delete because we hold the file lock.
+    for stale in path.parent.glob(f".{path.name}.*.tmp"):
+        stale.unlink(missing_ok=True)

@@ -1,0 +1,59 @@
+"""Every KyberCore error maps to one HTTP status, in one place."""
+
+from __future__ import annotations
+
+import pytest
+
+from kybercore.api.errors import error_status
+from kybercore.errors import (
+    AccessDenied,
+    ActionRejected,
+    ConfigError,
+    FileNotFound,
+    InvalidInput,
+    KlippyNotReady,
+    KyberCoreError,
+    LaunchError,
+    MoonrakerRpcError,
+    PrinterAuthFailed,
+    PrinterTimeout,
+    PrinterUnreachable,
+    UnknownPrinter,
+)
+
+
+@pytest.mark.parametrize(
+    ("error", "status", "code"),
+    [
+        (UnknownPrinter("x"), 404, "unknown_printer"),
+        (ActionRejected("no", code="pause_not_printing"), 409, "pause_not_printing"),
+        (KlippyNotReady("wait"), 409, "klippy_not_ready"),
+        (InvalidInput("bad"), 422, "invalid_input"),
+        (PrinterAuthFailed("key"), 502, "printer_auth_failed"),
+        (MoonrakerRpcError(400, "refused"), 502, "moonraker_error"),
+        (MoonrakerRpcError(404, "no such file"), 404, "not_found"),
+        (PrinterTimeout("slow"), 504, "printer_timeout"),
+        (PrinterUnreachable("down"), 503, "printer_unreachable"),
+        (ConfigError("broken"), 500, "config_error"),
+        (LaunchError("port in use"), 500, "launch_error"),
+        (FileNotFound("no such file"), 404, "not_found"),
+        (AccessDenied("who?", code="unauthorized"), 401, "unauthorized"),
+        (AccessDenied("not you", code="forbidden"), 403, "forbidden"),
+        (KyberCoreError("other"), 500, "error"),
+    ],
+)
+def test_error_status(error: KyberCoreError, status: int, code: str) -> None:
+    assert error_status(error) == (status, code)
+
+
+def test_messages_name_the_printer_and_what_to_do() -> None:
+    error = PrinterUnreachable("connection refused", printer="voron-1")
+    assert str(error) == "voron-1: connection refused"
+    assert "kybercore printers list" in UnknownPrinter("nope").message
+
+
+def test_reasons_are_given_at_construction() -> None:
+    reason = {"code": "c", "level": "block", "en": "no", "es": "no"}
+    assert InvalidInput("bad", reasons=[reason]).reasons == (reason,)
+    assert ActionRejected("no", code="x", reasons=[reason]).reasons == (reason,)
+    assert PrinterUnreachable("down", printer="p", reasons=[reason]).reasons == (reason,)

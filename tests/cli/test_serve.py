@@ -1,0 +1,46 @@
+"""The `kybercore` command's own behaviour (serve refuses what it cannot run)."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from kybercore.cli.main import app
+
+runner = CliRunner()
+
+
+def test_serve_refuses_a_broken_printers_json_naming_line_and_reason(tmp_path: Path) -> None:
+    # A long folder (a CI workspace, a long home) must not wrap the message at 80 columns.
+    deep = tmp_path / ("long-folder-name-" * 8) / "[farm]"
+    deep.mkdir(parents=True)
+    broken = deep / "printers.json"
+    broken.write_text('{"version": 1,\n "printers": [\n  {"id": "a",, }\n ]}\n')
+    result = runner.invoke(app, ["serve", "--printers-file", str(broken)])
+    assert result.exit_code == 1
+    error_line = next(line for line in result.output.splitlines() if "Error:" in line)
+    assert "line 3" in error_line
+    assert str(broken) in error_line
+    assert "Traceback" not in result.output
+    assert broken.read_text().startswith('{"version": 1,')  # untouched
+
+
+def test_serve_refuses_a_port_in_use(tmp_path: Path) -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        result = runner.invoke(
+            app, ["serve", "--port", str(port), "--printers-file", str(tmp_path / "p.json")]
+        )
+    assert result.exit_code == 1
+    assert f"127.0.0.1:{port}" in result.output
+    assert "--port" in result.output
+
+
+def test_version() -> None:
+    result = runner.invoke(app, ["version"])
+    assert result.exit_code == 0
+    assert result.output.strip()

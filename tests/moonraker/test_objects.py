@@ -1,0 +1,77 @@
+"""Bookkeeping of a printer's live state from Moonraker's notifications."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from kybercore.moonraker.objects import apply_status, klippy_state_after, merge_status
+
+FIELDS = st.dictionaries(
+    st.sampled_from(["temperature", "target", "position", "info", "state"]),
+    st.recursive(
+        st.none() | st.floats(allow_nan=False) | st.text(max_size=3),
+        lambda inner: (
+            st.lists(inner, max_size=3)
+            | st.dictionaries(st.sampled_from(["a", "b"]), inner, max_size=2)
+        ),
+        max_leaves=6,
+    ),
+    max_size=4,
+)
+STATUS = st.dictionaries(st.sampled_from(["extruder", "toolhead", "print_stats"]), FIELDS)
+
+
+def test_a_delta_updates_only_the_fields_it_names() -> None:
+    snapshot = {
+        "extruder": {"temperature": 20.0, "target": 0.0},
+        "print_stats": {"state": "printing", "info": {"current_layer": 1, "total_layer": 9}},
+        "toolhead": {"position": [0.0, 0.0, 0.0, 0.0]},
+    }
+    delta = {
+        "extruder": {"temperature": 21.5},
+        "print_stats": {"info": {"current_layer": 2}},
+        "toolhead": {"position": [1.0, 2.0]},
+        "fan": {"speed": 0.5},
+    }
+    merged = merge_status(snapshot, delta)
+    assert merged == {
+        "extruder": {"temperature": 21.5, "target": 0.0},
+        "print_stats": {"state": "printing", "info": {"current_layer": 2, "total_layer": 9}},
+        "toolhead": {"position": [1.0, 2.0]},  # lists replace, they do not merge
+        "fan": {"speed": 0.5},
+    }
+
+
+@given(STATUS, STATUS)
+def test_merging_leaves_its_inputs_untouched_and_wins_field_by_field(
+    snapshot: dict[str, Any], delta: dict[str, Any]
+) -> None:
+    before, delta_before = copy.deepcopy(snapshot), copy.deepcopy(delta)
+    merged = merge_status(snapshot, delta)
+    assert (snapshot, delta) == (before, delta_before)
+    assert set(merged) == set(snapshot) | set(delta)
+    for obj, fields in delta.items():
+        for key, value in fields.items():
+            if not isinstance(value, dict):
+                assert merged[obj][key] == value
+    for obj in set(snapshot) - set(delta):
+        assert merged[obj] is snapshot[obj]  # untouched objects are shared, not copied
+    # The in-place form the fleet service uses on its own live state gives the same result.
+    apply_status(snapshot, delta)
+    assert snapshot == merged
+
+
+def test_klippy_state_follows_notifications_and_webhooks() -> None:
+    assert klippy_state_after("ready", "notify_klippy_shutdown") == "shutdown"
+    assert klippy_state_after("shutdown", "notify_klippy_ready") == "ready"
+    assert klippy_state_after("ready", "notify_klippy_disconnected") == "disconnected"
+    update = [{"webhooks": {"state": "error"}}]
+    assert klippy_state_after("ready", "notify_status_update", update) == "error"
+    assert klippy_state_after("ready", "notify_status_update", [{"webhooks": {}}]) == "ready"
+    bogus = [{"webhooks": {"state": "exploded"}}]
+    assert klippy_state_after("ready", "notify_status_update", bogus) == "ready"
+    assert klippy_state_after("ready", "notify_gcode_response", ["ok"]) == "ready"
