@@ -8,6 +8,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from kybercore.cli.main import app
+from kybercore.sim.stack import free_port
 
 runner = CliRunner()
 
@@ -18,7 +19,8 @@ def test_serve_refuses_a_broken_printers_json_naming_line_and_reason(tmp_path: P
     deep.mkdir(parents=True)
     broken = deep / "printers.json"
     broken.write_text('{"version": 1,\n "printers": [\n  {"id": "a",, }\n ]}\n')
-    result = runner.invoke(app, ["serve", "--printers-file", str(broken)])
+    port = str(free_port())  # the check of the port comes first: it must pass
+    result = runner.invoke(app, ["serve", "--printers-file", str(broken), "--port", port])
     assert result.exit_code == 1
     error_line = next(line for line in result.output.splitlines() if "Error:" in line)
     assert "line 3" in error_line

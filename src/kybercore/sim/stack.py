@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import shutil
 import signal
 import socket
@@ -29,6 +30,7 @@ from kybercore.sim.runtime import KLIPPY, MOONRAKER, mcu_command
 log = logging.getLogger(__name__)
 
 READY_TIMEOUT: Final = 60.0
+_EXCEPTION_LINE: Final = re.compile(r"[A-Za-z_][\w.]*(: .*)?$")
 _STOP_GRACE: Final = 5.0
 
 
@@ -265,8 +267,13 @@ class PrinterStack:
             text = out.read_text(errors="replace")
         except OSError:
             return
-        if "Traceback" in text:
-            cause = text.strip().splitlines()[-1]
+        if "Traceback" not in text:
+            return
+        # The traceback is written in pieces: it is whole once its last line, the exception
+        # itself ("OSError: AF_UNIX path too long"), is written and newline-terminated.
+        last = text.rstrip("\n").splitlines()[-1]
+        if text.endswith("\n") and _EXCEPTION_LINE.match(last):
+            cause = last
             raise LaunchError(
                 f"{self.options.name}: Klippy failed at start ({cause}).\n{self._tails()}"
             )
