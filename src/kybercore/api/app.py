@@ -12,6 +12,8 @@ resource:
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket.
+
+Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
 """
 
 from __future__ import annotations
@@ -36,7 +38,9 @@ from kybercore.api.errors import (
     unexpected_error_handler,
     validation_error_handler,
 )
-from kybercore.api.security import Access, GuardMiddleware
+from kybercore.api.guard import GuardMiddleware
+from kybercore.api.hosts import HostAllowlist
+from kybercore.api.security import Access
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.moonraker.http import new_http_client
@@ -47,9 +51,14 @@ MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 
 def create_app(
-    registry: PrinterRegistry, access: Access | None = None, **service_options: Any
+    registry: PrinterRegistry,
+    access: Access | None = None,
+    *,
+    allowed_hosts: HostAllowlist | None = None,
+    **service_options: Any,
 ) -> FastAPI:
-    """The KyberCore ASGI app for the fleet in ``registry``; open access unless told."""
+    """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
+    (plus any IP address) unless told; ``service_options`` go to :class:`FleetService`."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -75,8 +84,12 @@ def create_app(
             Exception: unexpected_error_handler,
         },
     )
-    app.state.access = access or Access("open", None)
-    app.add_middleware(GuardMiddleware, max_body=MAX_UPLOAD_BYTES)
+    app.state.access = access or Access(None)
+    app.add_middleware(
+        GuardMiddleware,
+        hosts=allowed_hosts or HostAllowlist(),
+        upload_limit=MAX_UPLOAD_BYTES,
+    )
     for module in (fleet, printers, files, ws, session):
         app.include_router(module.router)
 

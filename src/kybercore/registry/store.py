@@ -117,7 +117,9 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def _signature(path: Path) -> Signature:
+def file_signature(path: Path) -> Signature:
+    """What tells one version of a file from another without reading it: (mtime_ns, size,
+    inode). The inode and size catch a replace within one tick of a coarse clock."""
     try:
         st = path.stat()
     except FileNotFoundError:
@@ -160,7 +162,7 @@ class PrinterRegistry:
     def changed(self) -> bool:
         """Whether the file changed on disk since it was last read or written (one stat)."""
         with self._lock:
-            return _signature(self.path) != self._seen
+            return file_signature(self.path) != self._seen
 
     def reload(self) -> list[PrinterConfig]:
         """Read the file (at start-up, or again after :meth:`changed`) and return the list.
@@ -170,7 +172,7 @@ class PrinterRegistry:
         """
         with self._lock:
             # Stat before reading: an edit landing during the read shows up on the next check.
-            self._seen = _signature(self.path)
+            self._seen = file_signature(self.path)
             try:
                 printers = read_printers(self.path)
             except ConfigError as exc:
@@ -239,7 +241,7 @@ class PrinterRegistry:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             with self._locked():
-                before = _signature(self.path)
+                before = file_signature(self.path)
                 printers = read_printers(self.path)
                 result = change(printers)
                 _remove_stale_temp_files(self.path)
@@ -249,7 +251,7 @@ class PrinterRegistry:
                 # If someone else edited the file since we last looked, leave _seen stale so
                 # watch() still reports the merged result; otherwise this write is ours alone.
                 if before == self._seen:
-                    self._seen = _signature(self.path)
+                    self._seen = file_signature(self.path)
                 return result
         except OSError as exc:
             raise ConfigError(
