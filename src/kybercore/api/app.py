@@ -11,7 +11,8 @@ resource:
   upload, delete;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
-- :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket.
+- :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
+- :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
 
 Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
 """
@@ -32,6 +33,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from kybercore import __version__
 from kybercore.api import files, fleet, printers, session, ws
 from kybercore.api.deps import ORJSONResponse
+from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
     http_error_handler,
     kybercore_error_handler,
@@ -77,6 +79,8 @@ def create_app(
         description="Fleet manager for Klipper 3D printers through Moonraker.",
         lifespan=lifespan,
         default_response_class=ORJSONResponse,
+        docs_url=None,  # add_docs serves them without a CDN
+        redoc_url=None,
         exception_handlers={
             KyberCoreError: kybercore_error_handler,
             RequestValidationError: validation_error_handler,
@@ -92,6 +96,7 @@ def create_app(
     )
     for module in (fleet, printers, files, ws, session):
         app.include_router(module.router)
+    add_docs(app)
 
     @app.get("/", include_in_schema=False)
     async def index() -> Response:
