@@ -136,8 +136,9 @@ def test_an_anonymous_chunked_body_is_refused_before_it_is_read(edge_server: Sta
         assert answer.json()["error"]["code"] == "unauthorized"
     # Before the fix the whole body was read first (RSS grew by its size, ~100 MB and more).
     assert growth < 50 * MiB
-    # The server answered and closed at once: what got out is what the sockets' buffers hold.
-    assert sent[0] < total / 2
+    # The server answered and closed at once: what left the client is what the sockets'
+    # buffers took in the meantime (0.1 MiB measured), nowhere near the 100 MB.
+    assert sent[0] < 16 * MiB
 
 
 def test_a_body_over_its_route_limit_is_refused_however_it_is_sent(
