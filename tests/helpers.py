@@ -83,6 +83,12 @@ class KyberCoreServer:
                 time.sleep(0.1)  # poll: wait for the server to answer, deadline above
         raise AssertionError(f"kybercore serve did not answer:\n{self.log.read_text()[-3000:]}")
 
+    @property
+    def pid(self) -> int:
+        """The server process's id (tests measure its memory)."""
+        assert self._proc is not None, "the server is not running"
+        return self._proc.pid
+
     def stop(self) -> None:
         """Stop the server (SIGTERM, then SIGKILL after 10 s)."""
         if self._proc is not None and self._proc.poll() is None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from kybercore.cli.main import app
@@ -46,3 +47,15 @@ def test_version() -> None:
     result = runner.invoke(app, ["version"])
     assert result.exit_code == 0
     assert result.output.strip()
+
+
+def test_serve_names_an_allowed_host_that_is_not_a_host_name(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The variable holds a list (commas or spaces), as a proxy's setup writes it.
+    monkeypatch.setenv("KYBERCORE_ALLOWED_HOSTS", "printers.lan,proxy.lan bad/name")
+    # 0.0.0.0 without a token: even a check that let the name through ends in an exit.
+    printers = str(tmp_path / "p.json")
+    result = runner.invoke(app, ["serve", "--host", "0.0.0.0", "--printers-file", printers])
+    assert result.exit_code == 1
+    assert "--allowed-host 'bad/name' is not a host name" in result.output

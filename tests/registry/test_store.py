@@ -297,6 +297,32 @@ def test_file_is_private(path: Path, registry: PrinterRegistry) -> None:
     assert stat.S_IMODE(path.stat().st_mode) == 0o600
 
 
+def test_a_stored_key_never_follows_the_printer_to_another_host(
+    registry: PrinterRegistry,
+) -> None:
+    """The key is write-only: whoever edits the URL must give it again for a new host, or
+    the next session would send it (X-Api-Key, identify) to a host of their choosing."""
+    added = registry.add(new("A", api_key=SECRET))
+
+    def key_after(**fields: Any) -> str | None:
+        stored = registry.update(added.id, PrinterUpdate.model_validate(fields))
+        return stored.api_key.get_secret_value() if stored.api_key else None
+
+    for elsewhere in ("http://evil.example:7125", "https://10.0.0.5:7125", "http://10.0.0.5:7126"):
+        with pytest.raises(InvalidInput, match="API key") as refused:
+            registry.update(added.id, PrinterUpdate.model_validate({"moonraker_url": elsewhere}))
+        assert {r["code"] for r in refused.value.reasons} == {"api_key_needed"}
+        assert registry.get(added.id).moonraker_url == "http://10.0.0.5:7125"
+    # Same scheme, host and port (a new path prefix, another field): kept.
+    assert key_after(moonraker_url="http://10.0.0.5:7125/moonraker") == SECRET
+    assert key_after(moonraker_url="http://10.0.0.5:7125", name="Renamed") == SECRET
+    # Given again, or removed on purpose: the move is fine.
+    assert key_after(moonraker_url="http://10.0.0.9:7125", api_key="new-key") == "new-key"
+    assert key_after(moonraker_url="http://10.0.0.5:7125", api_key=None) is None
+    assert key_after(moonraker_url="http://10.0.0.8:80") is None  # no key, nothing to protect
+    assert key_after(moonraker_url="http://10.0.0.8") is None
+
+
 def test_json_syntax_error_names_file_line_and_column(path: Path) -> None:
     path.write_text('{\n  "version": 1,\n  "printers": [\n    {"id": "a",,}\n  ]\n}\n')
     with pytest.raises(ConfigError) as caught:

@@ -11,7 +11,10 @@ resource:
   upload, delete;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
-- :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket.
+- :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
+- :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
+
+Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
 """
 
 from __future__ import annotations
@@ -30,13 +33,16 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from kybercore import __version__
 from kybercore.api import files, fleet, printers, session, ws
 from kybercore.api.deps import ORJSONResponse
+from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
     http_error_handler,
     kybercore_error_handler,
     unexpected_error_handler,
     validation_error_handler,
 )
-from kybercore.api.security import Access, GuardMiddleware
+from kybercore.api.guard import GuardMiddleware
+from kybercore.api.hosts import HostAllowlist
+from kybercore.api.security import Access
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.moonraker.http import new_http_client
@@ -47,9 +53,14 @@ MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 
 def create_app(
-    registry: PrinterRegistry, access: Access | None = None, **service_options: Any
+    registry: PrinterRegistry,
+    access: Access | None = None,
+    *,
+    allowed_hosts: HostAllowlist | None = None,
+    **service_options: Any,
 ) -> FastAPI:
-    """The KyberCore ASGI app for the fleet in ``registry``; open access unless told."""
+    """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
+    (plus any IP address) unless told; ``service_options`` go to :class:`FleetService`."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -68,6 +79,8 @@ def create_app(
         description="Fleet manager for Klipper 3D printers through Moonraker.",
         lifespan=lifespan,
         default_response_class=ORJSONResponse,
+        docs_url=None,  # add_docs serves them without a CDN
+        redoc_url=None,
         exception_handlers={
             KyberCoreError: kybercore_error_handler,
             RequestValidationError: validation_error_handler,
@@ -75,10 +88,15 @@ def create_app(
             Exception: unexpected_error_handler,
         },
     )
-    app.state.access = access or Access("open", None)
-    app.add_middleware(GuardMiddleware, max_body=MAX_UPLOAD_BYTES)
+    app.state.access = access or Access(None)
+    app.add_middleware(
+        GuardMiddleware,
+        hosts=allowed_hosts or HostAllowlist(),
+        upload_limit=MAX_UPLOAD_BYTES,
+    )
     for module in (fleet, printers, files, ws, session):
         app.include_router(module.router)
+    add_docs(app)
 
     @app.get("/", include_in_schema=False)
     async def index() -> Response:

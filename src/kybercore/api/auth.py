@@ -1,8 +1,15 @@
-"""Who may do what: bearer tokens with roles, stored hashed next to printers.json.
+"""Who may do what: bearer tokens with roles, stored hashed next to printers.json, and the
+browser sessions made from them.
 
 Roles are ordered: ``viewer`` (read the fleet) < ``operator`` (print actions, G-code,
 uploads) < ``admin`` (add, edit, remove printers). A token is shown once when created;
 the file keeps only its SHA-256 (tokens are 256 random bits, so a slow hash adds nothing).
+The server re-reads tokens.json whenever it changes, so a token created or revoked with
+the CLI counts at the next request.
+
+A browser that logs in gets a session, not its token: a random id in an HttpOnly cookie,
+kept in this process's memory (a restart logs browsers out), valid for
+:data:`SESSION_SECONDS`, ended by logout or by revoking the token it was made from.
 
 KyberCore runs open (everyone is admin) only when it listens on loopback and no token
 exists; anywhere else it requires a token, or refuses to start and says why.
@@ -17,6 +24,7 @@ import os
 import secrets
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Final, Literal
@@ -24,11 +32,14 @@ from typing import Final, Literal
 import filelock
 
 from kybercore.errors import ConfigError, InvalidInput
+from kybercore.registry.store import Signature, file_signature
 
 Role = Literal["viewer", "operator", "admin"]
 ROLES: Final[tuple[Role, ...]] = ("viewer", "operator", "admin")
 TOKEN_PREFIX: Final = "kc_"  # noqa: S105 -- a prefix that makes tokens recognisable
-COOKIE: Final = "kybercore_token"
+COOKIE: Final = "kybercore_session"
+SESSION_SECONDS: Final = 12 * 3600
+"""How long a browser login lasts; then the page asks for the token again."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +68,10 @@ class TokenRecord:
     sha256: str
     created: float
 
+    def identity(self) -> Identity:
+        """Who presents this token."""
+        return Identity(self.name, self.role)
+
 
 def hash_token(token: str) -> str:
     """The stored form of a token."""
@@ -69,16 +84,15 @@ class TokenStore:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._lock = filelock.FileLock(path.with_name(path.name + ".lock"), timeout=10)
-        self._cache: tuple[float, list[TokenRecord]] | None = None
+        self._cache: tuple[Signature, list[TokenRecord]] | None = None
 
     def records(self) -> list[TokenRecord]:
-        """Every stored token (re-read when the file changed)."""
-        try:
-            mtime = self.path.stat().st_mtime
-        except FileNotFoundError:
+        """Every stored token (re-read when the file changed: one stat otherwise)."""
+        signature = file_signature(self.path)
+        if signature is None:
             return []
-        if self._cache is None or self._cache[0] != mtime:
-            self._cache = (mtime, self._read())
+        if self._cache is None or self._cache[0] != signature:
+            self._cache = (signature, self._read())
         return list(self._cache[1])
 
     def create(self, name: str, role: str) -> tuple[TokenRecord, str]:
@@ -109,13 +123,22 @@ class TokenStore:
             self._write(kept)
         return next(r for r in records if r.id == token_id)
 
-    def identify(self, token: str) -> Identity | None:
-        """The identity a presented token belongs to, or None."""
+    def find(self, token: str) -> TokenRecord | None:
+        """The record of a presented token, or None."""
         digest = hash_token(token)
         for record in self.records():
             if hmac.compare_digest(record.sha256, digest):
-                return Identity(record.name, record.role)
+                return record
         return None
+
+    def get(self, token_id: str) -> TokenRecord | None:
+        """The record with this id, or None once it is revoked."""
+        return next((r for r in self.records() if r.id == token_id), None)
+
+    def identify(self, token: str) -> Identity | None:
+        """The identity a presented token belongs to, or None."""
+        record = self.find(token)
+        return record.identity() if record else None
 
     def _read(self) -> list[TokenRecord]:
         try:
@@ -140,6 +163,47 @@ class TokenStore:
         os.chmod(tmp, 0o600)
         os.replace(tmp, self.path)
         self._cache = None
+
+
+@dataclass(frozen=True)
+class _Session:
+    token_id: str
+    expires: float
+
+
+class BrowserSessions:
+    """Browser logins: session id -> the token it was made from, until it expires."""
+
+    def __init__(
+        self, lifetime: float = SESSION_SECONDS, clock: Callable[[], float] = time.time
+    ) -> None:
+        self.lifetime = lifetime
+        self._clock = clock
+        self._sessions: dict[str, _Session] = {}
+
+    def create(self, token_id: str) -> str:
+        """A new session for the token ``token_id``; returns its id (the cookie's value)."""
+        now = self._clock()
+        # Expired sessions go when a new one comes: memory follows the logins of a day.
+        self._sessions = {k: s for k, s in self._sessions.items() if s.expires > now}
+        session_id = secrets.token_urlsafe(32)
+        self._sessions[session_id] = _Session(token_id, now + self.lifetime)
+        return session_id
+
+    def identify(self, session_id: str, store: TokenStore) -> Identity | None:
+        """Who holds this session: None once it expired, ended or lost its token."""
+        session = self._sessions.get(session_id)
+        if session is None:
+            return None
+        record = store.get(session.token_id)
+        if record is None or session.expires <= self._clock():
+            self.end(session_id)
+            return None
+        return record.identity()
+
+    def end(self, session_id: str) -> None:
+        """Forget a session (logout)."""
+        self._sessions.pop(session_id, None)
 
 
 def tokens_path_for(printers_file: Path) -> Path:

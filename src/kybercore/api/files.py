@@ -58,7 +58,8 @@ async def thumbnail(service: Service, printer_id: str, path: str) -> Response:
         raise InvalidInput("Only .png and .jpg thumbnails can be fetched.")
     content = await service.client(printer_id).download(path)
     media = mimetypes.guess_type(path)[0] or "application/octet-stream"
-    return Response(content, media_type=media, headers={"Cache-Control": "max-age=300"})
+    # private: it may be behind a token, so no shared cache (a proxy) may keep it.
+    return Response(content, media_type=media, headers={"Cache-Control": "private, max-age=300"})
 
 
 @router.post(
@@ -77,7 +78,7 @@ async def upload(
 ) -> dict[str, Any]:
     """Upload a G-code file (checksummed); optionally validate it and start printing."""
     filename = safe_path(file.filename or "")
-    # The request size was checked before parsing (GuardMiddleware); the file itself
-    # stays spooled on disk and is streamed on to Moonraker.
+    # The body was counted as it arrived (GuardMiddleware, the upload limit); the file
+    # itself stays spooled on disk and is streamed on to Moonraker.
     outcome = await service.upload(printer_id, filename, file.file, start=start, confirm=confirm)
     return action_result(outcome)

@@ -1,7 +1,9 @@
 """``GET/POST/DELETE /api/session``: who am I, log in, log out.
 
-The browser logs in once and keeps its token in an HttpOnly cookie, out of reach of the
-page's scripts; scripts send ``Authorization: Bearer`` instead and need none of this.
+The browser logs in with a token and gets a session in an HttpOnly cookie, out of reach
+of the page's scripts: a random id that lasts 12 hours, ends at logout and with the token
+(:class:`~kybercore.api.auth.BrowserSessions`); the token itself never goes into the
+cookie. Scripts send ``Authorization: Bearer`` instead and need none of this.
 """
 
 from __future__ import annotations
@@ -12,9 +14,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
-from kybercore.api.auth import COOKIE, Role
+from kybercore.api.auth import COOKIE, SESSION_SECONDS, Role
 from kybercore.api.security import Access
-from kybercore.errors import AccessDenied
 
 router = APIRouter()
 
@@ -47,27 +48,27 @@ async def session(request: Request) -> dict[str, Any]:
 
 @router.post("/api/session", response_model=SessionInfo)
 async def login(request: Request, body: SessionLogin) -> Response:
-    """Check a token and keep it in an HttpOnly cookie for this browser."""
+    """Check a token and give this browser a session (an HttpOnly cookie) made from it."""
     access: Access = request.app.state.access
-    identity = access.identify({"authorization": f"Bearer {body.token}"}, {})
-    if identity is None:
-        raise AccessDenied("That token is not valid. Check it and retry.", code="unauthorized")
+    identity, session = access.login(body.token)
     answer = JSONResponse({"access": access.mode, "name": identity.name, "role": identity.role})
-    if access.mode == "tokens":
+    if session is not None:
         answer.set_cookie(
             COOKIE,
-            body.token,
+            session,
             httponly=True,
             samesite="strict",
             secure=request.url.scheme == "https",
-            max_age=30 * 24 * 3600,
+            max_age=SESSION_SECONDS,
         )
     return answer
 
 
 @router.delete("/api/session", status_code=204)
-async def logout() -> Response:
-    """Forget this browser's token."""
+async def logout(request: Request) -> Response:
+    """End this browser's session: its cookie is worth nothing from now on."""
+    access: Access = request.app.state.access
+    access.logout(request.cookies)
     answer = Response(status_code=204)
-    answer.delete_cookie(COOKIE)
+    answer.delete_cookie(COOKIE, httponly=True, samesite="strict")
     return answer

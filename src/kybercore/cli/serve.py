@@ -16,12 +16,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from kybercore.cli.options import Host, Port, PrintersFile
+from kybercore.cli.options import AllowedHosts, Host, Port, PrintersFile
 from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
 from kybercore.registry.store import PrinterRegistry, default_printers_path, write_printers
 
 if TYPE_CHECKING:
+    from kybercore.api.hosts import HostAllowlist
     from kybercore.api.security import Access
     from kybercore.fleet.advisor import AdvisorConfig
     from kybercore.sim.stack import PrinterStack
@@ -31,6 +32,7 @@ def serve(
     host: Host = "127.0.0.1",
     port: Port = 8000,
     printers_file: PrintersFile = None,
+    allowed_host: AllowedHosts = None,
     advisor_url: Annotated[
         str | None,
         typer.Option(
@@ -61,12 +63,13 @@ def serve(
         key = os.environ.get("KYBERCORE_ADVISOR_KEY")
         advisor = AdvisorConfig(advisor_url, SecretStr(key) if key else None, advisor_model)
     try:
+        hosts = _allowed_hosts(host, allowed_host or [])
         access = _access(path, host)
         ensure_port_free(port, host)
         registry = _open_registry(path)
     except KyberCoreError as exc:
         raise fail(exc.message) from None
-    _run_server(registry, host, port, access, advisor=advisor, log_level=log_level)
+    _run_server(registry, host, port, access, hosts, advisor=advisor, log_level=log_level)
 
 
 def demo(
@@ -98,7 +101,7 @@ def demo(
             _print_fleet(stacks)
             console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
-            _run_server(registry, host, port, access)
+            _run_server(registry, host, port, access, _allowed_hosts(host, []))
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     console.print("Stopped the dashboard and every virtual printer.")
@@ -145,15 +148,28 @@ def _open_registry(path: Path) -> PrinterRegistry:
 
 
 def _access(printers_file: Path, host: str) -> Access:
-    """Open on loopback without tokens; tokens otherwise; refuse what would be unsafe."""
+    """Open on loopback without tokens (until the first one is created); tokens otherwise;
+    refuse what would be unsafe."""
     from kybercore.api.auth import TokenStore, access_mode, tokens_path_for
     from kybercore.api.security import Access
 
     store = TokenStore(tokens_path_for(printers_file))
     mode = access_mode(_is_loopback(host), store)
     if mode == "open":
-        console.print("Open access: listening on loopback and no token exists.")
-    return Access(mode, store)
+        console.print(
+            "Open access: listening on loopback and no token exists (tokens are required "
+            "from the moment the first one is created)."
+        )
+    return Access(store, open_until_first_token=mode == "open")
+
+
+def _allowed_hosts(host: str, names: list[str]) -> HostAllowlist:
+    """The Host names to serve: the bound one, localhost, IPs and ``names`` (each may be a
+    comma-separated list; $KYBERCORE_ALLOWED_HOSTS may use commas or spaces)."""
+    from kybercore.api.hosts import HostAllowlist
+
+    given = [name.strip() for item in names for name in item.split(",") if name.strip()]
+    return HostAllowlist(bind=host, names=given)
 
 
 def _run_server(
@@ -161,6 +177,7 @@ def _run_server(
     host: str,
     port: int,
     access: Access,
+    hosts: HostAllowlist,
     advisor: AdvisorConfig | None = None,
     log_level: str = "info",
 ) -> None:
@@ -174,7 +191,7 @@ def _run_server(
     # The HTTP client logs every request at INFO; too chatty for a farm of printers.
     logging.getLogger("httpx").setLevel(logging.WARNING)
     uvicorn.run(
-        create_app(registry, access, advisor=advisor),
+        create_app(registry, access, allowed_hosts=hosts, advisor=advisor),
         host=host,
         port=port,
         log_level="warning",

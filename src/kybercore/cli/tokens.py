@@ -57,7 +57,8 @@ def revoke(
     token_id: Annotated[str, typer.Argument(help="The id shown by `kybercore tokens list`.")],
     printers_file: PrintersFile = None,
 ) -> None:
-    """Revoke a token at once (the server re-reads tokens.json on the next request)."""
+    """Revoke a token at once: a running server refuses it from its next request, ends the
+    browser sessions made from it and closes its WebSockets within a second."""
     try:
         record = _store(printers_file).revoke(token_id)
     except KyberCoreError as exc:

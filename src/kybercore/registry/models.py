@@ -56,6 +56,13 @@ def _check_url(url: str) -> str:
     return f"{scheme}://{parts.netloc.lower()}{parts.path.rstrip('/')}"
 
 
+def server_of(url: str) -> tuple[str, str, int]:
+    """The (scheme, host, port) a Moonraker URL reaches; its path does not change the server."""
+    parts = urlsplit(url)
+    port = parts.port or (443 if parts.scheme == "https" else 80)
+    return parts.scheme, parts.hostname or "", port
+
+
 def _dedupe(tags: list[str]) -> list[str]:
     return list(dict.fromkeys(tags))
 

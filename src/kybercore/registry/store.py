@@ -33,7 +33,13 @@ import filelock
 
 from kybercore.errors import ConfigError, InvalidInput, UnknownPrinter
 from kybercore.registry.format import backup_path, dump_printers, parse_printers
-from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate, slugify
+from kybercore.registry.models import (
+    PrinterConfig,
+    PrinterCreate,
+    PrinterUpdate,
+    server_of,
+    slugify,
+)
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +117,9 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def _signature(path: Path) -> Signature:
+def file_signature(path: Path) -> Signature:
+    """What tells one version of a file from another without reading it: (mtime_ns, size,
+    inode). The inode and size catch a replace within one tick of a coarse clock."""
     try:
         st = path.stat()
     except FileNotFoundError:
@@ -154,7 +162,7 @@ class PrinterRegistry:
     def changed(self) -> bool:
         """Whether the file changed on disk since it was last read or written (one stat)."""
         with self._lock:
-            return _signature(self.path) != self._seen
+            return file_signature(self.path) != self._seen
 
     def reload(self) -> list[PrinterConfig]:
         """Read the file (at start-up, or again after :meth:`changed`) and return the list.
@@ -164,7 +172,7 @@ class PrinterRegistry:
         """
         with self._lock:
             # Stat before reading: an edit landing during the read shows up on the next check.
-            self._seen = _signature(self.path)
+            self._seen = file_signature(self.path)
             try:
                 printers = read_printers(self.path)
             except ConfigError as exc:
@@ -202,12 +210,25 @@ class PrinterRegistry:
         return self._mutate(mutate)
 
     def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
-        """Apply ``patch`` to printer ``printer_id`` and return it as stored."""
+        """Apply ``patch`` to printer ``printer_id`` and return it as stored.
+
+        A stored API key never follows the printer to another server: a patch that moves
+        ``moonraker_url`` to another scheme, host or port must give ``api_key`` again (or
+        null to drop it), else InvalidInput. The key is write-only, so whoever can edit the
+        URL could otherwise have KyberCore send it to a host of their choosing.
+        """
 
         def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
             index = _index(printers, printer_id)
-            printers[index] = patch.apply(printers[index])
-            return printers[index]
+            current, updated = printers[index], patch.apply(printers[index])
+            if (
+                current.api_key is not None
+                and "api_key" not in patch.model_fields_set
+                and server_of(current.moonraker_url) != server_of(updated.moonraker_url)
+            ):
+                raise _key_needed(updated.moonraker_url)
+            printers[index] = updated
+            return updated
 
         return self._mutate(mutate)
 
@@ -220,7 +241,7 @@ class PrinterRegistry:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             with self._locked():
-                before = _signature(self.path)
+                before = file_signature(self.path)
                 printers = read_printers(self.path)
                 result = change(printers)
                 _remove_stale_temp_files(self.path)
@@ -230,7 +251,7 @@ class PrinterRegistry:
                 # If someone else edited the file since we last looked, leave _seen stale so
                 # watch() still reports the merged result; otherwise this write is ours alone.
                 if before == self._seen:
-                    self._seen = _signature(self.path)
+                    self._seen = file_signature(self.path)
                 return result
         except OSError as exc:
             raise ConfigError(
@@ -287,6 +308,21 @@ def _index(printers: list[PrinterConfig], printer_id: str) -> int:
         if printer.id == printer_id:
             return index
     raise UnknownPrinter(printer_id)
+
+
+def _key_needed(url: str) -> InvalidInput:
+    english = (
+        f"The printer moves to another server ({url}): give its Moonraker API key again "
+        "(api_key, or --api-key), or remove the stored key (api_key: null, or "
+        "--clear-api-key). A stored key is never sent to a new host."
+    )
+    spanish = (
+        f"La impresora pasa a otro servidor ({url}): indica de nuevo su clave de API de "
+        "Moonraker (api_key o --api-key) o borra la guardada (api_key: null o "
+        "--clear-api-key). Una clave guardada nunca se envía a otro host."
+    )
+    reason = {"code": "api_key_needed", "level": "block", "category": "input"}
+    return InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
 
 
 def _free_id(base: str, taken: set[str]) -> str:
