@@ -85,10 +85,8 @@ async def watches(
     start_stack: Callable[..., PrinterStack], http: httpx.AsyncClient
 ) -> AsyncIterator[tuple[PrinterStack, Watch, PrinterStack, Watch]]:
     a = start_stack("restart-a")
-    # Realistic heating (~8 C/s, not the tests' fast one): a heated kill then always finds
-    # the heater far below its target and fully on, whatever the machine's load. At the fast
-    # rate the hotend reached its target within the kill's own latency on a busy machine,
-    # and a heater idling at target (duty 0) does not trip the MCU's watchdog.
+    # Realistic heating (~8 C/s, not the tests' fast one): after M104 S250 its heater stays
+    # at full power for ~25 s, so a heated kill finds it fully on however slow the machine.
     b = start_stack("restart-b", heat_rate=1.0)
     wa, wb = Watch(a, http), Watch(b, http)
     for watch in (wa, wb):
@@ -101,13 +99,24 @@ async def watches(
     b.stop()
 
 
-async def hotend(watch: Watch) -> float:
-    status = await watch.client.objects_query({"extruder": ["temperature"]})
-    return float(status["extruder"]["temperature"])
+async def heater_on_in_mcu(watch: Watch, target: float, baseline: list[float]) -> bool:
+    """The MCU really drives the hotend heater: Klippy at full power toward ``target`` and
+    the hotend 2 C warmer than a real reading taken since.
 
-
-async def rising(watch: Watch, before: float) -> bool:
-    return await hotend(watch) > before + 2
+    Klippy's own power is not enough: it reports a new power when it queues the PWM update,
+    and a Klippy killed before sending it leaves the MCU's heater off (no watchdog trip). A
+    temperature reading alone is not enough either: a restarted Klippy reports 0.0 C until
+    its first ADC sample.
+    """
+    status = await watch.client.objects_query({"extruder": ["target", "power", "temperature"]})
+    extruder = status["extruder"]
+    temperature = float(extruder["temperature"])
+    if extruder["target"] != target or extruder["power"] < 0.9 or temperature <= 0:
+        return False
+    if not baseline:
+        baseline.append(temperature)
+        return False
+    return temperature > baseline[0] + 2
 
 
 def watchdog_trips(stack: PrinterStack) -> int:
@@ -141,11 +150,12 @@ async def kill_klippy(stack: PrinterStack, watch: Watch) -> tuple[list[float], l
         heated = n in HEATED_KILLS
         if heated:
             # Far from its target, so the heater is surely on (not idling at target) when
-            # Klippy dies: only then does the MCU watchdog trip. Rising proves it is on.
-            before = await hotend(watch)
+            # Klippy dies: only then does the MCU watchdog trip.
             await watch.client.gcode_script("M104 S250", timeout=10)
+            baseline: list[float] = []
             await wait_for(
-                lambda b=before: rising(watch, b), what=f"kill {n}: the heater on in the MCU"
+                lambda b=baseline: heater_on_in_mcu(watch, 250.0, b),
+                what=f"kill {n}: the heater on in the MCU",
             )
             trips = watchdog_trips(stack)
         mark = len(watch.events)
