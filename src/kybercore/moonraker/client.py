@@ -34,10 +34,10 @@ from kybercore.moonraker.http import (
     UPLOAD_TIMEOUT,
     http_error,
     json_body,
-    transport_problem,
 )
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import Status
+from kybercore.moonraker.reach import connect_problem
 from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
@@ -288,6 +288,9 @@ class MoonrakerClient:
         try:
             await self._wait_while_alive(request, method, path)
             response = await request
+        except httpx.ConnectTimeout as exc:
+            problem = connect_problem(exc, self.base_url, _connect_timeout(exc))
+            raise PrinterTimeout(problem, printer=self.name) from exc
         except httpx.TimeoutException as exc:
             raise PrinterTimeout(
                 f"Moonraker at {self.base_url} did not answer {method} {path} in time. "
@@ -295,7 +298,7 @@ class MoonrakerClient:
                 printer=self.name,
             ) from exc
         except httpx.TransportError as exc:
-            problem = transport_problem(self.base_url, exc)
+            problem = connect_problem(exc, self.base_url)
             raise PrinterUnreachable(problem, printer=self.name) from exc
         finally:
             if not request.done():
@@ -353,6 +356,15 @@ class MoonrakerClient:
         return True
 
 
+def _connect_timeout(exc: httpx.ConnectTimeout) -> float | None:
+    """The connect timeout the failed request had, if httpx kept it."""
+    try:
+        value = exc.request.extensions.get("timeout", {}).get("connect")
+    except RuntimeError:  # an exception raised without its request
+        return None
+    return float(value) if isinstance(value, (int, float)) else None
+
+
 def _sha256(content: bytes | BinaryIO) -> str:
     if isinstance(content, bytes):
         return hashlib.sha256(content).hexdigest()
@@ -365,5 +377,3 @@ def _sha256(content: bytes | BinaryIO) -> str:
 
 def _ignore(_event: SessionEvent) -> None:
     """Default event sink for clients used for HTTP only."""
-
-

@@ -72,21 +72,3 @@ def http_error(response: httpx.Response, path: str, printer: str) -> PrinterErro
             printer=printer,
         )
     return MoonrakerRpcError(status, message or response.reason_phrase, printer=printer)
-
-
-def transport_problem(base_url: str, exc: httpx.TransportError) -> str:
-    """What a failed connection means, in words a person can act on."""
-    causes = []
-    cause: BaseException | None = exc
-    while cause is not None:
-        causes.append(cause)
-        cause = cause.__cause__ or cause.__context__
-    lowered = " ".join(str(c) for c in causes).lower()
-    if any(isinstance(c, ConnectionRefusedError) for c in causes) or "refused" in lowered:
-        return f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
-    if "name or service not known" in lowered or "name resolution" in lowered:
-        return (
-            f"the host name in {base_url} cannot be resolved. Check the printer's URL "
-            "or use its IP address."
-        )
-    return f"cannot reach Moonraker at {base_url} ({exc or type(exc).__name__}). Retry later."

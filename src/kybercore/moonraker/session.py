@@ -18,6 +18,7 @@ import logging
 import time
 from collections.abc import Mapping
 from typing import Any, Final
+from urllib.parse import urlsplit
 
 import orjson
 import picows
@@ -43,6 +44,7 @@ from kybercore.moonraker.events import (
 )
 from kybercore.moonraker.link import Connect, LinkLost, MoonrakerLink, open_link
 from kybercore.moonraker.objects import Status, klippy_state_after
+from kybercore.moonraker.reach import connect_problem
 
 log = logging.getLogger(__name__)
 
@@ -195,6 +197,14 @@ class MoonrakerSession:
             printer=self.name,
         )
 
+    def _describe(self, exc: BaseException) -> str:
+        if isinstance(exc, PrinterError):
+            return exc.message
+        if isinstance(exc, picows.WSError):
+            return str(exc) or type(exc).__name__
+        where = urlsplit(self.ws_url).netloc
+        return connect_problem(exc, where, OPEN_TIMEOUT if isinstance(exc, TimeoutError) else None)
+
     def _set_connection(self, connection: str, detail: str = "") -> None:
         if connection != self.connection or detail != self.last_error:
             self.connection = connection
@@ -248,7 +258,7 @@ class MoonrakerSession:
             except (OSError, TimeoutError, picows.WSError, PrinterError) as exc:
                 # OSError: Moonraker's socket refused or reset us (a restart, most likely).
                 peer_left = isinstance(exc, OSError)
-                self._drop(_describe(exc))
+                self._drop(self._describe(exc))
             except Exception as exc:
                 # A bug, or a Moonraker answer no one foresaw: the session must outlive it
                 # (a dead task would leave the printer shown "online" and frozen forever).
@@ -393,14 +403,3 @@ def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
             printer=printer,
         )
     return MoonrakerRpcError(code, text, printer=printer)
-
-
-def _describe(exc: BaseException) -> str:
-    if isinstance(exc, ConnectionRefusedError):
-        return "connection refused (is Moonraker running on that port?)"
-    if isinstance(exc, TimeoutError):
-        return "timed out while connecting"
-    if isinstance(exc, PrinterError):
-        return exc.message
-    text = str(exc) or type(exc).__name__
-    return text
