@@ -38,6 +38,7 @@ from kybercore.moonraker.http import (
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import Status
 from kybercore.moonraker.reach import connect_problem
+from kybercore.moonraker.refusals import refusal
 from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
@@ -122,7 +123,7 @@ class MoonrakerClient:
 
     async def call(self, method: str, params: Mapping[str, Any] | None = None) -> Any:
         """A JSON-RPC call over the live WebSocket session."""
-        return await self.session.call(method, params)
+        return await self._over_socket(method, params)
 
     # -- printer -----------------------------------------------------------------------
 
@@ -317,6 +318,11 @@ class MoonrakerClient:
         try:
             await self._wait_while_alive(call, "RPC", method)
             return await call
+        except MoonrakerRpcError as exc:
+            refused = refusal(exc, method)
+            if refused is None:
+                raise
+            raise refused from exc
         finally:
             if not call.done():
                 call.cancel()

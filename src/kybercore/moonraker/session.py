@@ -45,6 +45,7 @@ from kybercore.moonraker.events import (
 from kybercore.moonraker.link import Connect, LinkLost, MoonrakerLink, open_link
 from kybercore.moonraker.objects import Status, klippy_state_after
 from kybercore.moonraker.reach import connect_problem
+from kybercore.moonraker.refusals import rpc_error
 
 log = logging.getLogger(__name__)
 
@@ -359,7 +360,7 @@ class MoonrakerSession:
                 future.set_result(message.get("result"))
             else:
                 future.set_exception(
-                    _rpc_error(error, self._methods.get(message["id"], ""), self.name)
+                    rpc_error(error, self._methods.get(message["id"], ""), self.name)
                 )
             return
         method = message.get("method")
@@ -385,21 +386,3 @@ def status_objects(status: Mapping[str, Any]) -> Status:
     """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
     anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
     return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
-
-
-def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
-    raw_code = error.get("code") if isinstance(error, dict) else None
-    code = raw_code if isinstance(raw_code, int) and not isinstance(raw_code, bool) else -1
-    text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
-    # Moonraker answers a bad key in `identify` with -32602 "Invalid API Key".
-    if code in (401, 403) or "api key" in text.lower() or "unauthorized" in text.lower():
-        return PrinterAuthFailed(
-            f"Moonraker refused the API key ({text}). Fix the printer's api_key.", printer=printer
-        )
-    # Klippy registers the printer.* methods, so they are "not found" until it connects.
-    if code == -32601 and method.startswith("printer."):
-        return KlippyNotReady(
-            "Klippy is not connected to Moonraker; wait for it or restart the firmware.",
-            printer=printer,
-        )
-    return MoonrakerRpcError(code, text, printer=printer)
