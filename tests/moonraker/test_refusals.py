@@ -15,10 +15,12 @@ from kybercore.errors import (
     KlippyNotReady,
     KyberCoreError,
     MoonrakerRpcError,
+    PrinterAuthFailed,
 )
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import StatusSnapshot
 from kybercore.moonraker.http import http_error
+from kybercore.moonraker.refusals import rpc_error
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import wait_for
 
@@ -137,3 +139,21 @@ def test_moonraker_misbehaving_is_still_a_moonraker_error() -> None:
     error = http_error(httpx.Response(500, text="oops", request=request), "/server/info", "p1")
     assert isinstance(error, MoonrakerRpcError)
     assert error.rpc_code == 500
+
+
+def test_a_file_in_use_is_refused_not_an_auth_failure() -> None:
+    request = httpx.Request("POST", "http://127.0.0.1:7125/server/files/upload")
+    body = {"error": {"code": 403, "message": "File is loaded, upload not permitted"}}
+    error = http_error(httpx.Response(403, json=body, request=request), "/server/files", "p1")
+    assert isinstance(error, ActionRejected)
+    assert error.code == "file_in_use"
+    unauthorized = {"error": {"code": 401, "message": "Unauthorized"}}
+    response = httpx.Response(401, json=unauthorized, request=request)
+    assert isinstance(http_error(response, "/server/files", "p1"), PrinterAuthFailed)
+
+
+def test_klippy_away_over_the_websocket_is_not_ready() -> None:
+    error = rpc_error(
+        {"code": 503, "message": "Klippy Host not connected"}, "printer.print.pause", "p1"
+    )
+    assert isinstance(error, KlippyNotReady)
