@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import logging
 import time
 from collections.abc import Mapping
 from typing import Any, Final
 from urllib.parse import urlsplit
 
-import orjson
 import picows
 
 from kybercore.aio import cancel_and_wait
@@ -29,7 +27,6 @@ from kybercore.errors import (
     MoonrakerRpcError,
     PrinterAuthFailed,
     PrinterError,
-    PrinterTimeout,
     PrinterUnreachable,
 )
 from kybercore.moonraker.backoff import Backoff
@@ -43,9 +40,15 @@ from kybercore.moonraker.events import (
     StatusSnapshot,
 )
 from kybercore.moonraker.link import Connect, LinkLost, MoonrakerLink, open_link
-from kybercore.moonraker.objects import Status, klippy_state_after
+from kybercore.moonraker.objects import (
+    klippy_state_after,
+    klippy_state_in,
+    snapshot_status,
+    status_objects,
+    with_klippy_state,
+)
 from kybercore.moonraker.reach import connect_problem
-from kybercore.moonraker.refusals import rpc_error
+from kybercore.moonraker.rpc import PendingCalls
 
 log = logging.getLogger(__name__)
 
@@ -87,18 +90,19 @@ class MoonrakerSession:
         self.ws_url = ws_url
         self.name = name
         self._api_key = api_key
-        self._subscription = dict(subscription)
+        self._subscription = with_klippy_state(subscription)
         self._on_event = on_event
         self._client_name = client_name
         self._version = version
         self._connect = connect
         self._backoff = backoff or Backoff()
-        self._ids = itertools.count(1)
-        self._pending: dict[int, asyncio.Future[Any]] = {}
-        self._methods: dict[int, str] = {}
+        self._calls = PendingCalls(name)
         self._link: MoonrakerLink | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
+        self._klippy_news = 0
+        """How many times a notification or a snapshot told Klippy's state: an answer to a
+        ``server.info`` sent before the count last moved is older than what we know."""
         self._up = False
         """This connection got as far as a valid ``server.info``: Moonraker really answered."""
         self.connection = "connecting"
@@ -139,23 +143,7 @@ class MoonrakerSession:
                 f"not connected to Moonraker at {self.ws_url} ({self.last_error or 'connecting'})",
                 printer=self.name,
             )
-        req_id = next(self._ids)
-        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        self._pending[req_id] = future
-        self._methods[req_id] = method
-        request: dict[str, Any] = {"jsonrpc": "2.0", "method": method, "id": req_id}
-        if params is not None:
-            request["params"] = dict(params)
-        try:
-            link.send(orjson.dumps(request))
-            return await asyncio.wait_for(future, timeout)
-        except TimeoutError as exc:
-            raise PrinterTimeout(
-                f"Moonraker did not answer '{method}' within {timeout:g} s", printer=self.name
-            ) from exc
-        finally:
-            self._pending.pop(req_id, None)
-            self._methods.pop(req_id, None)
+        return await self._calls.call(link.send, method, params, timeout)
 
     async def alive(self, timeout: float) -> bool | None:
         """Whether Moonraker answers a ping within ``timeout`` s right now.
@@ -168,12 +156,14 @@ class MoonrakerSession:
         return None if link is None else await link.ping(timeout)
 
     async def resubscribe(self) -> None:
-        """Subscribe again (for example after changing what to watch)."""
+        """Subscribe again (for example after changing what to watch).
+
+        The snapshot (and the Klippy state in it) is reported as its answer is read, in
+        order with the notifications around it: see :meth:`_answered`.
+        """
         result = await self.call("printer.objects.subscribe", {"objects": self._subscription})
-        status = result.get("status") if isinstance(result, dict) else None
-        if not isinstance(status, dict):
+        if snapshot_status(result) is None:
             raise self._malformed("printer.objects.subscribe", "no 'status' object")
-        self._emit(StatusSnapshot(status=status_objects(status)))
 
     # -- internals ---------------------------------------------------------------------
 
@@ -283,11 +273,7 @@ class MoonrakerSession:
     def _drop(self, why: str, connection: str = "offline") -> None:
         """Forget the socket and fail every pending call at once."""
         self._link = None
-        error = self._unreachable(why)
-        for future in self._pending.values():
-            if not future.done():
-                future.set_exception(error)
-        self._pending.clear()
+        self._calls.fail_all(self._unreachable(why))
         self._set_klippy("disconnected")
         self._set_connection(connection, why)
 
@@ -331,6 +317,7 @@ class MoonrakerSession:
         """Poll ``server.info`` until Klippy can be subscribed to, then wait for news."""
         while True:
             self._klippy_event.clear()
+            news = self._klippy_news
             info = await self.call("server.info")
             if not isinstance(info, dict):
                 raise self._malformed("server.info", "not an object")
@@ -338,30 +325,23 @@ class MoonrakerSession:
             state = str(info.get("klippy_state", "disconnected"))
             if info.get("klippy_connected") and state in _SUBSCRIBABLE_STATES:
                 try:
+                    # The snapshot's webhooks.state, not this server.info, sets the state:
+                    # Klippy may have shut down in between.
                     await self.resubscribe()
                 except (KlippyNotReady, MoonrakerRpcError) as exc:
                     log.info("%s: subscribe failed, retrying: %s", self.name, exc)
                     await asyncio.sleep(KLIPPY_POLL_SECONDS)
                     continue
-                self._set_klippy(state)
                 await self._klippy_event.wait()
             else:
-                self._set_klippy(state)
+                if self._klippy_news == news:  # nothing newer arrived while we asked
+                    self._set_klippy(state)
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
 
     def _dispatch(self, message: dict[str, Any]) -> None:
         if "id" in message and ("result" in message or "error" in message):
-            future = self._pending.get(message["id"]) if isinstance(message["id"], int) else None
-            if future is None or future.done():
-                return
-            error = message.get("error")
-            if error is None:
-                future.set_result(message.get("result"))
-            else:
-                future.set_exception(
-                    rpc_error(error, self._methods.get(message["id"], ""), self.name)
-                )
+            self._calls.answer(message, self._answered)
             return
         method = message.get("method")
         if not isinstance(method, str):
@@ -371,18 +351,27 @@ class MoonrakerSession:
         if method == "notify_status_update":
             if params and isinstance(params[0], dict):
                 eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
-                self._emit(StatusDelta(delta=status_objects(params[0]), eventtime=eventtime))
-            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+                delta = status_objects(params[0])
+                self._emit(StatusDelta(delta=delta, eventtime=eventtime))
+                self._hear_klippy(klippy_state_in(delta))
             return
         if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
             self._klippy_event.set()
         if method.startswith("notify_klippy_"):
-            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            self._hear_klippy(klippy_state_after(self.klippy_state, method, params))
             return
         self._emit(Notification(method, params))
 
+    def _answered(self, method: str, result: Any) -> None:
+        """A subscription's answer, handled as it is read: its snapshot and Klippy's state
+        in it are newer than every notification before it and older than any after it."""
+        status = snapshot_status(result) if method == "printer.objects.subscribe" else None
+        if status is not None:
+            self._emit(StatusSnapshot(status=status))
+            self._hear_klippy(klippy_state_in(status))
 
-def status_objects(status: Mapping[str, Any]) -> Status:
-    """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
-    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
-    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
+    def _hear_klippy(self, state: str | None) -> None:
+        """Klippy's state as Moonraker just told it (``None``: it did not say)."""
+        if state is not None:
+            self._klippy_news += 1
+            self._set_klippy(state)
