@@ -49,6 +49,8 @@ log = logging.getLogger(__name__)
 # instead of leaving it to wait minutes for its own timeout.
 PROBE_AFTER: Final = 1.5
 PROBE_TIMEOUT: Final = 2.0
+# Klippy answers an e-stop at once; a socket that takes longer gets the HTTP fallback.
+E_STOP_SOCKET_TIMEOUT: Final = 3.0
 
 FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "webhooks": ["state", "state_message"],
@@ -187,7 +189,19 @@ class MoonrakerClient:
             await self._request("POST", path, timeout=ACTION_TIMEOUT)
 
     async def emergency_stop(self) -> None:
-        """Stop the machine now (``/printer/emergency_stop``, never ``M112`` queued as G-code)."""
+        """Stop the machine now (Moonraker's emergency stop, never ``M112`` queued as G-code).
+
+        Over the open WebSocket first: the fastest way there, with no connection to make.
+        If the socket fails under it, the stop goes again over HTTP (a second e-stop is
+        harmless; a lost one is not).
+        """
+        if self.session.connected:
+            try:
+                await self._over_socket("printer.emergency_stop", None, E_STOP_SOCKET_TIMEOUT)
+            except PrinterUnreachable as exc:
+                log.warning("%s: e-stop over the WebSocket failed (%s); HTTP now", self.name, exc)
+            else:
+                return
         await self._request("POST", "/printer/emergency_stop")
 
     async def restart(self) -> None:
