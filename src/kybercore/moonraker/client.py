@@ -248,9 +248,11 @@ class MoonrakerClient:
 
         ``content`` may be an open binary file: it is streamed, never loaded whole.
         """
+        # Up to 512 MiB read and hashed: in a worker thread, never on the event loop.
+        checksum = await asyncio.to_thread(_sha256, content)
         data = {
             "root": root,
-            "checksum": _sha256(content),
+            "checksum": checksum,
             "print": "true" if start else "false",
         }
         files = {"file": (filename, content, "application/octet-stream")}
