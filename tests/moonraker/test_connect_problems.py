@@ -20,7 +20,7 @@ from kybercore.errors import PrinterTimeout, PrinterUnreachable
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import ConnectionChanged, SessionEvent
-from kybercore.moonraker.reach import connect_problem
+from kybercore.moonraker.reach import connect_problem, connection_refused
 from tests.helpers import wait_for
 
 URL = "http://127.0.0.1:7125"
@@ -187,3 +187,16 @@ def drops(events: list[SessionEvent]) -> list[str]:
     return [
         e.detail for e in events if isinstance(e, ConnectionChanged) and e.connection == "offline"
     ]
+
+
+def test_refused_is_told_apart_from_every_other_cause() -> None:
+    """A refusal means the host is up (Moonraker restarting): the session retries quickly."""
+    for cause, exc, _ in CASES:
+        expected = cause == "refused"
+        assert connection_refused(exc) is expected, cause
+        assert connection_refused(anyio_failure(exc)) is expected, cause
+    several = OSError(
+        "Multiple exceptions: [Errno 111] Connect call failed ('::1', 7125, 0, 0), "
+        "[Errno 111] Connect call failed ('127.0.0.1', 7125)"
+    )
+    assert connection_refused(several)

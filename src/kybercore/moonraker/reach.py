@@ -71,6 +71,14 @@ def connect_problem(exc: BaseException, where: str, timeout: float | None = None
     return f"cannot reach Moonraker at {where} ({exc or type(exc).__name__}). Retry later."
 
 
+def connection_refused(exc: BaseException) -> bool:
+    """Whether ``exc`` is a refused connection: the host answered, nothing listens there."""
+    causes = list(_causes(exc))
+    if any(isinstance(c, ConnectionRefusedError) for c in causes):
+        return True
+    return any(str(errno.ECONNREFUSED) in _ERRNO_IN_TEXT.findall(str(c)) for c in causes)
+
+
 def _tls_reason(error: ssl.SSLError) -> str:
     """OpenSSL's reason in words: "certificate verify failed: self-signed certificate"."""
     verify = getattr(error, "verify_message", None)

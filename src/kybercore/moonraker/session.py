@@ -47,7 +47,7 @@ from kybercore.moonraker.objects import (
     status_objects,
     with_klippy_state,
 )
-from kybercore.moonraker.reach import connect_problem
+from kybercore.moonraker.reach import connect_problem, connection_refused
 from kybercore.moonraker.rpc import PendingCalls
 
 log = logging.getLogger(__name__)
@@ -212,7 +212,7 @@ class MoonrakerSession:
             started = time.monotonic()
             connected_for = 0.0
             retry_after: float | None = None
-            peer_left = False
+            peer_left = refused = False
             self._up = False
             link: MoonrakerLink | None = None
             try:
@@ -249,6 +249,7 @@ class MoonrakerSession:
             except (OSError, TimeoutError, picows.WSError, PrinterError) as exc:
                 # OSError: Moonraker's socket refused or reset us (a restart, most likely).
                 peer_left = isinstance(exc, OSError)
+                refused = connection_refused(exc)
                 self._drop(self._describe(exc))
             except Exception as exc:
                 # A bug, or a Moonraker answer no one foresaw: the session must outlive it
@@ -262,12 +263,12 @@ class MoonrakerSession:
                 # After _drop: pending calls fail at once, not after the goodbye.
                 if link is not None:
                     await link.close(CLOSE_TIMEOUT)
-            if peer_left and self._up:
-                # A healthy session ended by Moonraker (a restart): come back at once, however
-                # many restarts came before. Faults we detected keep backing off.
-                self._backoff.reset()
+            if self._up:
+                # Moonraker answered on this connection: if it ended it (a restart), come
+                # back at once; refusals soon after are a restart too (see Backoff).
+                self._backoff.healthy_session_ended(by_peer=peer_left)
             connected_for = time.monotonic() - started
-            delay = self._backoff.next_delay(connected_for)
+            delay = self._backoff.next_delay(connected_for, refused=refused)
             await asyncio.sleep(retry_after if retry_after is not None else delay)
 
     def _drop(self, why: str, connection: str = "offline") -> None:
