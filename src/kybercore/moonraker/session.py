@@ -49,6 +49,7 @@ from kybercore.moonraker.objects import (
 )
 from kybercore.moonraker.reach import connect_problem, connection_refused
 from kybercore.moonraker.rpc import PendingCalls
+from kybercore.moonraker.statelog import StateLog
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +101,7 @@ class MoonrakerSession:
         self._link: MoonrakerLink | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
+        self._states = StateLog(name)
         self._klippy_news = 0
         """How many times a notification or a snapshot told Klippy's state: an answer to a
         ``server.info`` sent before the count last moved is older than what we know."""
@@ -200,10 +202,14 @@ class MoonrakerSession:
         if connection != self.connection or detail != self.last_error:
             self.connection = connection
             self.last_error = detail
+            if self._task is not None:  # stop() clears it: a deliberate stop is no news
+                self._states.connection(connection, detail)
             self._emit(ConnectionChanged(connection, detail))
 
     def _set_klippy(self, state: str, message: str = "") -> None:
         if state != self.klippy_state:
+            if self._task is not None:
+                self._states.klippy(state, self.klippy_state, message)
             self.klippy_state = state
             self._emit(KlippyChanged(state, message))
 
