@@ -95,6 +95,6 @@ async def test_e_stop_falls_back_to_http_when_the_socket_fails_under_it(
 
         monkeypatch.setattr(type(client.session), "connected", property(lambda _self: True))
         monkeypatch.setattr(client.session, "call", dropped)
-        monkeypatch.setattr(client, "_request", over_http)
+        monkeypatch.setattr(client._channel, "request", over_http)
         await client.emergency_stop()
     assert sent == ["printer.emergency_stop", f"POST {E_STOP}"]

@@ -8,7 +8,6 @@ happened and what to do; no method returns ``None`` to mean "it failed".
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hashlib
 import logging
 import os
@@ -23,32 +22,22 @@ import picows
 from kybercore import __version__
 from kybercore.errors import (
     MoonrakerRpcError,
-    PrinterError,
-    PrinterTimeout,
     PrinterUnreachable,
 )
+from kybercore.moonraker.channel import Channel
 from kybercore.moonraker.events import EventCallback, SessionEvent
 from kybercore.moonraker.http import (
     ACTION_TIMEOUT,
     GCODE_TIMEOUT,
     UPLOAD_TIMEOUT,
-    http_error,
     json_body,
 )
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import Status
-from kybercore.moonraker.reach import connect_problem
-from kybercore.moonraker.refusals import refusal
 from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
 
-# A slow answer is normal (G28, M109); a frozen Moonraker is not. While a request waits,
-# Moonraker is probed every PROBE_AFTER s (a ping over the live session, else a small HTTP
-# request); nothing back within PROBE_TIMEOUT s fails the request as unreachable (HTTP 503)
-# instead of leaving it to wait minutes for its own timeout.
-PROBE_AFTER: Final = 1.5
-PROBE_TIMEOUT: Final = 2.0
 # Klippy answers an e-stop at once; a socket that takes longer gets the HTTP fallback.
 E_STOP_SOCKET_TIMEOUT: Final = 3.0
 
@@ -100,8 +89,6 @@ class MoonrakerClient:
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self.name = name
-        self._http = http
-        self._headers = {"X-Api-Key": api_key} if api_key else {}
         self.session = MoonrakerSession(
             websocket_url(self.base_url),
             name=name,
@@ -112,6 +99,8 @@ class MoonrakerClient:
             version=__version__,
             connect=connect,
         )
+        headers = {"X-Api-Key": api_key} if api_key else {}
+        self._channel = Channel(self.base_url, http, headers, self.session, name)
 
     # -- session -----------------------------------------------------------------------
 
@@ -125,43 +114,43 @@ class MoonrakerClient:
 
     async def call(self, method: str, params: Mapping[str, Any] | None = None) -> Any:
         """A JSON-RPC call over the live WebSocket session."""
-        return await self._over_socket(method, params)
+        return await self._channel.rpc(method, params)
 
     # -- printer -----------------------------------------------------------------------
 
     async def printer_info(self) -> dict[str, Any]:
         """Klippy's ``/printer/info``: state, state_message, hostname, software_version."""
-        return dict(await self._request("GET", "/printer/info"))
+        return dict(await self._channel.request("GET", "/printer/info"))
 
     async def server_info(self) -> dict[str, Any]:
         """Moonraker's ``/server/info``, including ``klippy_state``."""
-        return dict(await self._request("GET", "/server/info"))
+        return dict(await self._channel.request("GET", "/server/info"))
 
     async def objects_list(self) -> list[str]:
         """Names of every printer object Klippy has loaded."""
-        result = await self._request("GET", "/printer/objects/list")
+        result = await self._channel.request("GET", "/printer/objects/list")
         return list(result["objects"])
 
     async def objects_query(self, objects: Mapping[str, list[str] | None]) -> Status:
         """Current values of ``objects`` (``None`` = every field of that object)."""
         if self.session.connected:
-            result = await self._over_socket("printer.objects.query", {"objects": dict(objects)})
+            result = await self._channel.rpc("printer.objects.query", {"objects": dict(objects)})
             return dict(result["status"])
         params = {obj: ",".join(fields) if fields else "" for obj, fields in objects.items()}
-        result = await self._request("GET", "/printer/objects/query", params=params)
+        result = await self._channel.request("GET", "/printer/objects/query", params=params)
         return dict(result["status"])
 
     async def gcode_script(self, script: str, timeout: float | None = None) -> str:
         """Run G-code; returns when Klippy has finished it (which may take minutes)."""
         limit = GCODE_TIMEOUT if timeout is None else httpx.Timeout(timeout, connect=3.0)
-        result = await self._request(
+        result = await self._channel.request(
             "POST", "/printer/gcode/script", params={"script": script}, timeout=limit
         )
         return str(result)
 
     async def print_start(self, filename: str) -> None:
         """Start printing ``filename`` (relative to the gcodes root)."""
-        await self._request(
+        await self._channel.request(
             "POST", "/printer/print/start", params={"filename": filename}, timeout=ACTION_TIMEOUT
         )
 
@@ -184,9 +173,9 @@ class MoonrakerClient:
         slows a bulk action down; the socket is already open.
         """
         if self.session.connected:
-            await self._over_socket(method, None, ACTION_TIMEOUT.read or 60.0)
+            await self._channel.rpc(method, None, ACTION_TIMEOUT.read or 60.0)
         else:
-            await self._request("POST", path, timeout=ACTION_TIMEOUT)
+            await self._channel.request("POST", path, timeout=ACTION_TIMEOUT)
 
     async def emergency_stop(self) -> None:
         """Stop the machine now (Moonraker's emergency stop, never ``M112`` queued as G-code).
@@ -197,34 +186,34 @@ class MoonrakerClient:
         """
         if self.session.connected:
             try:
-                await self._over_socket("printer.emergency_stop", None, E_STOP_SOCKET_TIMEOUT)
+                await self._channel.rpc("printer.emergency_stop", None, E_STOP_SOCKET_TIMEOUT)
             except PrinterUnreachable as exc:
                 log.warning("%s: e-stop over the WebSocket failed (%s); HTTP now", self.name, exc)
             else:
                 return
-        await self._request("POST", "/printer/emergency_stop")
+        await self._channel.request("POST", "/printer/emergency_stop")
 
     async def restart(self) -> None:
         """Restart Klippy's host software (re-reads printer.cfg)."""
-        await self._request("POST", "/printer/restart", timeout=ACTION_TIMEOUT)
+        await self._channel.request("POST", "/printer/restart", timeout=ACTION_TIMEOUT)
 
     async def firmware_restart(self) -> None:
         """Restart the MCU firmware and Klippy; the way out of ``shutdown``."""
-        await self._request("POST", "/printer/firmware_restart", timeout=ACTION_TIMEOUT)
+        await self._channel.request("POST", "/printer/firmware_restart", timeout=ACTION_TIMEOUT)
 
     # -- files -------------------------------------------------------------------------
 
     async def files_list(self, root: str = "gcodes") -> list[dict[str, Any]]:
         """Every file under ``root``: ``[{path, modified, size, permissions}]``."""
-        return list(await self._request("GET", "/server/files/list", params={"root": root}))
+        return list(await self._channel.request("GET", "/server/files/list", params={"root": root}))
 
     async def file_metadata(self, filename: str) -> dict[str, Any]:
         """Slicer metadata Moonraker parsed from the file's header."""
         params = {"filename": filename}
         if not self.session.connected:
-            return dict(await self._request("GET", "/server/files/metadata", params=params))
+            return dict(await self._channel.request("GET", "/server/files/metadata", params=params))
         try:
-            return dict(await self._over_socket("server.files.metadata", params))
+            return dict(await self._channel.rpc("server.files.metadata", params))
         except MoonrakerRpcError as exc:
             # Over JSON-RPC Moonraker says -32601 where HTTP says 404: keep one meaning.
             if "not available" in exc.detail:
@@ -234,11 +223,11 @@ class MoonrakerClient:
     async def file_thumbnails(self, filename: str) -> list[dict[str, Any]]:
         """Thumbnails of a file: ``[{width, height, size, thumbnail_path}]``."""
         params = {"filename": filename}
-        return list(await self._request("GET", "/server/files/thumbnails", params=params))
+        return list(await self._channel.request("GET", "/server/files/thumbnails", params=params))
 
     async def download(self, path: str, root: str = "gcodes") -> bytes:
         """The raw bytes of a file (a G-code, or a thumbnail under ``.thumbs/``)."""
-        response = await self._send("GET", f"/server/files/{root}/{quote(path)}")
+        response = await self._channel.send("GET", f"/server/files/{root}/{quote(path)}")
         return response.content
 
     async def upload(
@@ -256,7 +245,7 @@ class MoonrakerClient:
             "print": "true" if start else "false",
         }
         files = {"file": (filename, content, "application/octet-stream")}
-        response = await self._send(
+        response = await self._channel.send(
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )
         # The one Moonraker endpoint whose answer is not wrapped in {"result": ...}.
@@ -264,127 +253,29 @@ class MoonrakerClient:
 
     async def delete_file(self, path: str, root: str = "gcodes") -> None:
         """Delete a file."""
-        await self._request("DELETE", f"/server/files/{root}/{quote(path)}")
+        await self._channel.request("DELETE", f"/server/files/{root}/{quote(path)}")
 
     # -- history, console, webcams -----------------------------------------------------
 
     async def history_list(self, limit: int = 50, start: int = 0) -> dict[str, Any]:
         """Past jobs, newest first: ``{count, jobs: [...]}``."""
         params = {"limit": str(limit), "start": str(start), "order": "desc"}
-        return dict(await self._request("GET", "/server/history/list", params=params))
+        return dict(await self._channel.request("GET", "/server/history/list", params=params))
 
     async def history_totals(self) -> dict[str, Any]:
         """Totals over every job: ``{job_totals: {total_jobs, total_time, ...}}``."""
-        return dict(await self._request("GET", "/server/history/totals"))
+        return dict(await self._channel.request("GET", "/server/history/totals"))
 
     async def gcode_store(self, count: int = 100) -> list[dict[str, Any]]:
         """The console's recent commands and responses: ``[{message, time, type}]``."""
-        result = await self._request("GET", "/server/gcode_store", params={"count": str(count)})
+        result = await self._channel.request(
+            "GET", "/server/gcode_store", params={"count": str(count)}
+        )
         return list(result["gcode_store"])
 
     async def webcams_list(self) -> list[dict[str, Any]]:
         """Configured webcams: ``[{name, stream_url, snapshot_url, ...}]``."""
-        return list((await self._request("GET", "/server/webcams/list"))["webcams"])
-
-    # -- HTTP plumbing -----------------------------------------------------------------
-
-    async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
-        """Send a request and unwrap Moonraker's ``{"result": ...}``."""
-        body = json_body(await self._send(method, path, **kwargs), self.name)
-        if not isinstance(body, dict) or "result" not in body:
-            raise MoonrakerRpcError(
-                -1, f"unexpected answer to {method} {path}: no 'result'", printer=self.name
-            )
-        return body["result"]
-
-    async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        url = self.base_url + path
-        request = asyncio.ensure_future(
-            self._http.request(method, url, headers=self._headers, **kwargs)
-        )
-        try:
-            await self._wait_while_alive(request, method, path)
-            response = await request
-        except httpx.ConnectTimeout as exc:
-            problem = connect_problem(exc, self.base_url, _connect_timeout(exc))
-            raise PrinterTimeout(problem, printer=self.name) from exc
-        except httpx.TimeoutException as exc:
-            raise PrinterTimeout(
-                f"Moonraker at {self.base_url} did not answer {method} {path} in time. "
-                "Check the printer's network; retry later.",
-                printer=self.name,
-            ) from exc
-        except httpx.TransportError as exc:
-            problem = connect_problem(exc, self.base_url)
-            raise PrinterUnreachable(problem, printer=self.name) from exc
-        finally:
-            if not request.done():
-                request.cancel()
-                with contextlib.suppress(asyncio.CancelledError, httpx.HTTPError):
-                    await request
-        if response.is_success:
-            return response
-        raise http_error(response, path, self.name)
-
-    async def _over_socket(
-        self, method: str, params: Mapping[str, Any] | None, timeout: float = 10.0
-    ) -> Any:
-        """A JSON-RPC call on the live session, failed early if Moonraker stops answering."""
-        call = asyncio.ensure_future(self.session.call(method, params, timeout))
-        try:
-            await self._wait_while_alive(call, "RPC", method)
-            return await call
-        except MoonrakerRpcError as exc:
-            refused = refusal(exc, method)
-            if refused is None:
-                raise
-            raise refused from exc
-        finally:
-            if not call.done():
-                call.cancel()
-                with contextlib.suppress(asyncio.CancelledError, PrinterError):
-                    await call
-
-    async def _wait_while_alive(
-        self, request: asyncio.Future[httpx.Response], method: str, path: str
-    ) -> None:
-        """Wait for ``request``; fail it as unreachable if Moonraker stops answering."""
-        while not request.done():
-            done, _ = await asyncio.wait({request}, timeout=PROBE_AFTER)
-            if done:
-                continue
-            # A ping over the live session; without one, a fresh small HTTP request.
-            alive = await self.session.alive(PROBE_TIMEOUT) if self.session.running else None
-            if alive is None:
-                alive = await self._http_alive()
-            if alive is False and not request.done():
-                raise PrinterUnreachable(
-                    f"Moonraker at {self.base_url} stopped answering (nothing within "
-                    f"{PROBE_TIMEOUT:g} s) while KyberCore waited for {method} {path}. "
-                    "The printer may have run the command or not: check it before retrying.",
-                    printer=self.name,
-                )
-
-    async def _http_alive(self) -> bool | None:
-        """Whether ``/server/info`` answers within PROBE_TIMEOUT (None: it cannot tell)."""
-        try:
-            await self._http.get(
-                self.base_url + "/server/info", headers=self._headers, timeout=PROBE_TIMEOUT
-            )
-        except httpx.TimeoutException:
-            return False
-        except httpx.HTTPError:
-            return None
-        return True
-
-
-def _connect_timeout(exc: httpx.ConnectTimeout) -> float | None:
-    """The connect timeout the failed request had, if httpx kept it."""
-    try:
-        value = exc.request.extensions.get("timeout", {}).get("connect")
-    except RuntimeError:  # an exception raised without its request
-        return None
-    return float(value) if isinstance(value, (int, float)) else None
+        return list((await self._channel.request("GET", "/server/webcams/list"))["webcams"])
 
 
 def _sha256(content: bytes | BinaryIO) -> str:
