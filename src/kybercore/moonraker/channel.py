@@ -16,6 +16,7 @@ from kybercore.errors import (
     PrinterTimeout,
     PrinterUnreachable,
 )
+from kybercore.moonraker.answers import malformed
 from kybercore.moonraker.http import http_error, json_body
 from kybercore.moonraker.reach import connect_problem
 from kybercore.moonraker.refusals import refusal
@@ -50,9 +51,7 @@ class Channel:
         """Send a request and unwrap Moonraker's ``{"result": ...}``."""
         body = json_body(await self.send(method, path, **kwargs), self._name)
         if not isinstance(body, dict) or "result" not in body:
-            raise MoonrakerRpcError(
-                -1, f"unexpected answer to {method} {path}: no 'result'", printer=self._name
-            )
+            raise malformed(f"{method} {path}", "no 'result'", self._base_url, self._name)
         return body["result"]
 
     async def send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:

@@ -24,6 +24,7 @@ from kybercore.errors import (
     MoonrakerRpcError,
     PrinterUnreachable,
 )
+from kybercore.moonraker.answers import Shapes
 from kybercore.moonraker.channel import Channel
 from kybercore.moonraker.events import EventCallback, SessionEvent
 from kybercore.moonraker.http import (
@@ -101,6 +102,7 @@ class MoonrakerClient:
         )
         headers = {"X-Api-Key": api_key} if api_key else {}
         self._channel = Channel(self.base_url, http, headers, self.session, name)
+        self._shapes = Shapes(self.base_url, name)
 
     # -- session -----------------------------------------------------------------------
 
@@ -120,25 +122,26 @@ class MoonrakerClient:
 
     async def printer_info(self) -> dict[str, Any]:
         """Klippy's ``/printer/info``: state, state_message, hostname, software_version."""
-        return dict(await self._channel.request("GET", "/printer/info"))
+        return await self._get_object("/printer/info")
 
     async def server_info(self) -> dict[str, Any]:
         """Moonraker's ``/server/info``, including ``klippy_state``."""
-        return dict(await self._channel.request("GET", "/server/info"))
+        return await self._get_object("/server/info")
 
     async def objects_list(self) -> list[str]:
         """Names of every printer object Klippy has loaded."""
+        what = "GET /printer/objects/list"
         result = await self._channel.request("GET", "/printer/objects/list")
-        return list(result["objects"])
+        return self._shapes.names(self._shapes.field(result, "objects", what), what)
 
     async def objects_query(self, objects: Mapping[str, list[str] | None]) -> Status:
         """Current values of ``objects`` (``None`` = every field of that object)."""
         if self.session.connected:
             result = await self._channel.rpc("printer.objects.query", {"objects": dict(objects)})
-            return dict(result["status"])
+            return self._shapes.status(result, "printer.objects.query")
         params = {obj: ",".join(fields) if fields else "" for obj, fields in objects.items()}
         result = await self._channel.request("GET", "/printer/objects/query", params=params)
-        return dict(result["status"])
+        return self._shapes.status(result, "GET /printer/objects/query")
 
     async def gcode_script(self, script: str, timeout: float | None = None) -> str:
         """Run G-code; returns when Klippy has finished it (which may take minutes)."""
@@ -205,15 +208,17 @@ class MoonrakerClient:
 
     async def files_list(self, root: str = "gcodes") -> list[dict[str, Any]]:
         """Every file under ``root``: ``[{path, modified, size, permissions}]``."""
-        return list(await self._channel.request("GET", "/server/files/list", params={"root": root}))
+        result = await self._channel.request("GET", "/server/files/list", params={"root": root})
+        return self._shapes.objects(result, "GET /server/files/list")
 
     async def file_metadata(self, filename: str) -> dict[str, Any]:
         """Slicer metadata Moonraker parsed from the file's header."""
         params = {"filename": filename}
         if not self.session.connected:
-            return dict(await self._channel.request("GET", "/server/files/metadata", params=params))
+            return await self._get_object("/server/files/metadata", params=params)
         try:
-            return dict(await self._channel.rpc("server.files.metadata", params))
+            result = await self._channel.rpc("server.files.metadata", params)
+            return self._shapes.object(result, "server.files.metadata")
         except MoonrakerRpcError as exc:
             # Over JSON-RPC Moonraker says -32601 where HTTP says 404: keep one meaning.
             if "not available" in exc.detail:
@@ -223,7 +228,8 @@ class MoonrakerClient:
     async def file_thumbnails(self, filename: str) -> list[dict[str, Any]]:
         """Thumbnails of a file: ``[{width, height, size, thumbnail_path}]``."""
         params = {"filename": filename}
-        return list(await self._channel.request("GET", "/server/files/thumbnails", params=params))
+        result = await self._channel.request("GET", "/server/files/thumbnails", params=params)
+        return self._shapes.objects(result, "GET /server/files/thumbnails")
 
     async def download(self, path: str, root: str = "gcodes") -> bytes:
         """The raw bytes of a file (a G-code, or a thumbnail under ``.thumbs/``)."""
@@ -249,7 +255,7 @@ class MoonrakerClient:
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )
         # The one Moonraker endpoint whose answer is not wrapped in {"result": ...}.
-        return dict(json_body(response, self.name))
+        return self._shapes.object(json_body(response, self.name), "POST /server/files/upload")
 
     async def delete_file(self, path: str, root: str = "gcodes") -> None:
         """Delete a file."""
@@ -260,22 +266,30 @@ class MoonrakerClient:
     async def history_list(self, limit: int = 50, start: int = 0) -> dict[str, Any]:
         """Past jobs, newest first: ``{count, jobs: [...]}``."""
         params = {"limit": str(limit), "start": str(start), "order": "desc"}
-        return dict(await self._channel.request("GET", "/server/history/list", params=params))
+        return await self._get_object("/server/history/list", params=params)
 
     async def history_totals(self) -> dict[str, Any]:
         """Totals over every job: ``{job_totals: {total_jobs, total_time, ...}}``."""
-        return dict(await self._channel.request("GET", "/server/history/totals"))
+        return await self._get_object("/server/history/totals")
 
     async def gcode_store(self, count: int = 100) -> list[dict[str, Any]]:
         """The console's recent commands and responses: ``[{message, time, type}]``."""
+        what = "GET /server/gcode_store"
         result = await self._channel.request(
             "GET", "/server/gcode_store", params={"count": str(count)}
         )
-        return list(result["gcode_store"])
+        return self._shapes.objects(self._shapes.field(result, "gcode_store", what), what)
 
     async def webcams_list(self) -> list[dict[str, Any]]:
         """Configured webcams: ``[{name, stream_url, snapshot_url, ...}]``."""
-        return list((await self._channel.request("GET", "/server/webcams/list"))["webcams"])
+        what = "GET /server/webcams/list"
+        result = await self._channel.request("GET", "/server/webcams/list")
+        return self._shapes.objects(self._shapes.field(result, "webcams", what), what)
+
+    async def _get_object(self, path: str, **kwargs: Any) -> dict[str, Any]:
+        """``GET path``, whose result must be a JSON object."""
+        result = await self._channel.request("GET", path, **kwargs)
+        return self._shapes.object(result, f"GET {path}")
 
 
 def _sha256(content: bytes | BinaryIO) -> str:

@@ -29,6 +29,7 @@ from kybercore.errors import (
     PrinterError,
     PrinterUnreachable,
 )
+from kybercore.moonraker.answers import malformed
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -170,11 +171,7 @@ class MoonrakerSession:
     # -- internals ---------------------------------------------------------------------
 
     def _malformed(self, method: str, why: str) -> MoonrakerRpcError:
-        return MoonrakerRpcError(
-            -32603,
-            f"unexpected answer to '{method}' ({why}). Is {self.ws_url} really Moonraker?",
-            printer=self.name,
-        )
+        return malformed(method, why, self.ws_url, self.name)
 
     def _emit(self, event: SessionEvent) -> None:
         """Hand an event to the owner; its bugs are logged, never allowed to kill the link."""
