@@ -3,10 +3,17 @@
 The session identifies itself as an agent, waits while Klippy starts, subscribes to the
 objects it was given and hands every notification to a callback. When the socket drops,
 every pending call fails at once with :class:`PrinterUnreachable` and the session
-reconnects by itself, forever, with capped exponential backoff and jitter; after each
-reconnect (and after ``notify_klippy_ready``) it subscribes again. The socket itself is
-:mod:`kybercore.moonraker.link`; what the session reports is in
-:mod:`kybercore.moonraker.events`, its reconnect delays in :mod:`kybercore.moonraker.backoff`.
+reconnects by itself, forever, with capped exponential backoff and jitter (but every second
+or so while a printer that was just healthy refuses connections: a restart); after each
+reconnect (and after ``notify_klippy_ready``) it subscribes again.
+
+Klippy's state is what Moonraker last said, in the order it said it: each notification,
+and the ``webhooks.state`` of each subscription snapshot as its answer is read. A
+``server.info`` answer only fills in while nothing can be subscribed to.
+
+The socket itself is :mod:`kybercore.moonraker.link`; what the session reports is in
+:mod:`kybercore.moonraker.events`, its reconnect delays in :mod:`kybercore.moonraker.backoff`,
+and the changes it logs in :mod:`kybercore.moonraker.statelog`.
 """
 
 from __future__ import annotations
