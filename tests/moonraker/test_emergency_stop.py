@@ -74,27 +74,45 @@ async def _klippy(client: MoonrakerClient, state: str) -> bool:
     return (await client.server_info())["klippy_state"] == state
 
 
-async def test_e_stop_falls_back_to_http_when_the_socket_fails_under_it(
-    monkeypatch: pytest.MonkeyPatch,
+class FakeSession:
+    """Unit-level fake (no traffic): a socket that is open until the call over it fails,
+    dropped (the link went) or still open (Moonraker stopped answering)."""
+
+    def __init__(self, drops: bool) -> None:
+        self.open = True
+        self.drops = drops
+        self.sent: list[str] = []
+
+    async def call(
+        self, method: str, params: Mapping[str, Any] | None = None, timeout: float = 10.0
+    ) -> Any:
+        self.sent.append(method)
+        self.open = not self.drops
+        raise PrinterUnreachable("lost the connection to Moonraker", printer="p")
+
+
+@pytest.mark.parametrize("drops", [True, False], ids=["socket dropped", "Moonraker silent"])
+async def test_e_stop_falls_back_to_http_only_when_the_socket_dropped(
+    drops: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Unit-level fakes (no traffic): the socket looked open, but the call over it failed as
-    the link dropped. An e-stop may be sent twice, so it is sent again over HTTP."""
+    """A dropped socket: the e-stop is sent again over HTTP (twice is harmless). An open one
+    on which Moonraker stopped answering: HTTP would not be answered either; fail at once."""
     async with httpx.AsyncClient() as http:
         client = MoonrakerClient("http://127.0.0.1:9", http, name="p")
-        sent: list[str] = []
-
-        async def dropped(
-            method: str, params: Mapping[str, Any] | None = None, timeout: float = 10.0
-        ) -> Any:
-            sent.append(method)
-            raise PrinterUnreachable("lost the connection to Moonraker", printer="p")
+        fake = FakeSession(drops)
 
         async def over_http(method: str, path: str, **_kwargs: Any) -> Any:
-            sent.append(f"{method} {path}")
+            fake.sent.append(f"{method} {path}")
             return "ok"
 
-        monkeypatch.setattr(type(client.session), "connected", property(lambda _self: True))
-        monkeypatch.setattr(client.session, "call", dropped)
+        session_type = type(client.session)
+        monkeypatch.setattr(session_type, "connected", property(lambda _self: fake.open))
+        monkeypatch.setattr(client.session, "call", fake.call)
         monkeypatch.setattr(client._channel, "request", over_http)
-        await client.emergency_stop()
-    assert sent == ["printer.emergency_stop", f"POST {E_STOP}"]
+        if drops:
+            await client.emergency_stop()
+            assert fake.sent == ["printer.emergency_stop", f"POST {E_STOP}"]
+        else:
+            with pytest.raises(PrinterUnreachable):
+                await client.emergency_stop()
+            assert fake.sent == ["printer.emergency_stop"]

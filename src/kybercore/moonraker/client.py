@@ -39,8 +39,6 @@ from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
 
-# Klippy answers an e-stop at once; a socket that takes longer gets the HTTP fallback.
-E_STOP_SOCKET_TIMEOUT: Final = 3.0
 
 FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "webhooks": ["state", "state_message"],
@@ -184,13 +182,16 @@ class MoonrakerClient:
         """Stop the machine now (Moonraker's emergency stop, never ``M112`` queued as G-code).
 
         Over the open WebSocket first: the fastest way there, with no connection to make.
-        If the socket fails under it, the stop goes again over HTTP (a second e-stop is
-        harmless; a lost one is not).
+        If the socket drops under it, the stop goes again over HTTP (a second e-stop is
+        harmless; a lost one is not). A Moonraker that stops answering on an open socket
+        would not answer HTTP either: that fails as unreachable, at once.
         """
         if self.session.connected:
             try:
-                await self._channel.rpc("printer.emergency_stop", None, E_STOP_SOCKET_TIMEOUT)
+                await self._channel.rpc("printer.emergency_stop", None)
             except PrinterUnreachable as exc:
+                if self.session.connected:
+                    raise
                 log.warning("%s: e-stop over the WebSocket failed (%s); HTTP now", self.name, exc)
             else:
                 return
