@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.moonraker import client as moonraker_client
+from kybercore.moonraker import channel as moonraker_channel
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, free_port
@@ -131,4 +131,4 @@ def test_a_frozen_moonraker_never_hangs_a_request(dead_fleet: DeadFleet) -> None
             expected = (409,) if path == "actions/pause" else (503,)
             assert status in expected, (path, status)
             assert took < FROZEN_ANSWER_WITHIN, took_all
-    assert moonraker_client.PROBE_AFTER + moonraker_client.PROBE_TIMEOUT <= ANSWER_WITHIN
+    assert moonraker_channel.PROBE_AFTER + moonraker_channel.PROBE_TIMEOUT <= ANSWER_WITHIN

@@ -213,7 +213,7 @@ async def test_a_stalled_handshake_times_out_and_keeps_retrying(
     start = time.monotonic()
     session, rec = sessions(faulty.url, "stall")
     await wait_for(lambda: bool(rec.drops()), timeout=10, what="the open timeout")
-    assert rec.drops()[0][1] == "timed out while connecting"
+    assert rec.drops()[0][1].startswith("timed out while connecting")
     assert FAST_OPEN_TIMEOUT <= rec.drops()[0][0] - start < STALL_FAST_WITHIN
     # Calls fail at once while the session cannot connect: the call raises on its first
     # step, never suspending, so nothing can wait on the stall (bench/promises.py: ~20 µs).
@@ -248,7 +248,7 @@ async def test_production_timeouts_notice_silent_and_stalled_peers_within_11_s(
     await wait_for(
         lambda: bool(stall_rec.drops()), timeout=PRODUCTION_STALL_WITHIN, what="the stall given up"
     )
-    assert stall_rec.drops()[0][1] == "timed out while connecting"
+    assert stall_rec.drops()[0][1].startswith("timed out while connecting")
     assert stall_rec.drops()[0][0] - start < PRODUCTION_STALL_WITHIN
     # The promises are these constants: silence noticed within 11 s (a ping after 5 s of
     # silence, 5 s for its pong, 1 s for the close), a stalled handshake given up after 5 s.

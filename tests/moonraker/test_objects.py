@@ -8,7 +8,12 @@ from typing import Any
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kybercore.moonraker.objects import apply_status, klippy_state_after, merge_status
+from kybercore.moonraker.objects import (
+    apply_status,
+    klippy_state_after,
+    merge_status,
+    with_klippy_state,
+)
 
 FIELDS = st.dictionaries(
     st.sampled_from(["temperature", "target", "position", "info", "state"]),
@@ -75,3 +80,12 @@ def test_klippy_state_follows_notifications_and_webhooks() -> None:
     bogus = [{"webhooks": {"state": "exploded"}}]
     assert klippy_state_after("ready", "notify_status_update", bogus) == "ready"
     assert klippy_state_after("ready", "notify_gcode_response", ["ok"]) == "ready"
+
+
+def test_a_subscription_always_says_klippys_state() -> None:
+    assert with_klippy_state({"extruder": None}) == {"extruder": None, "webhooks": ["state"]}
+    assert with_klippy_state({"webhooks": ["state_message"]}) == {
+        "webhooks": ["state_message", "state"]
+    }
+    assert with_klippy_state({"webhooks": None}) == {"webhooks": None}
+    assert with_klippy_state({"webhooks": ["state"]}) == {"webhooks": ["state"]}

@@ -8,7 +8,6 @@ happened and what to do; no method returns ``None`` to mean "it failed".
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hashlib
 import logging
 import os
@@ -23,18 +22,16 @@ import picows
 from kybercore import __version__
 from kybercore.errors import (
     MoonrakerRpcError,
-    PrinterError,
-    PrinterTimeout,
     PrinterUnreachable,
 )
+from kybercore.moonraker.answers import Shapes
+from kybercore.moonraker.channel import Channel
 from kybercore.moonraker.events import EventCallback, SessionEvent
 from kybercore.moonraker.http import (
     ACTION_TIMEOUT,
     GCODE_TIMEOUT,
     UPLOAD_TIMEOUT,
-    http_error,
     json_body,
-    transport_problem,
 )
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import Status
@@ -42,12 +39,6 @@ from kybercore.moonraker.session import MoonrakerSession
 
 log = logging.getLogger(__name__)
 
-# A slow answer is normal (G28, M109); a frozen Moonraker is not. While a request waits,
-# Moonraker is probed every PROBE_AFTER s (a ping over the live session, else a small HTTP
-# request); nothing back within PROBE_TIMEOUT s fails the request as unreachable (HTTP 503)
-# instead of leaving it to wait minutes for its own timeout.
-PROBE_AFTER: Final = 1.5
-PROBE_TIMEOUT: Final = 2.0
 
 FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "webhooks": ["state", "state_message"],
@@ -97,8 +88,6 @@ class MoonrakerClient:
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self.name = name
-        self._http = http
-        self._headers = {"X-Api-Key": api_key} if api_key else {}
         self.session = MoonrakerSession(
             websocket_url(self.base_url),
             name=name,
@@ -109,6 +98,9 @@ class MoonrakerClient:
             version=__version__,
             connect=connect,
         )
+        headers = {"X-Api-Key": api_key} if api_key else {}
+        self._channel = Channel(self.base_url, http, headers, self.session, name)
+        self._shapes = Shapes(self.base_url, name)
 
     # -- session -----------------------------------------------------------------------
 
@@ -122,43 +114,44 @@ class MoonrakerClient:
 
     async def call(self, method: str, params: Mapping[str, Any] | None = None) -> Any:
         """A JSON-RPC call over the live WebSocket session."""
-        return await self.session.call(method, params)
+        return await self._channel.rpc(method, params)
 
     # -- printer -----------------------------------------------------------------------
 
     async def printer_info(self) -> dict[str, Any]:
         """Klippy's ``/printer/info``: state, state_message, hostname, software_version."""
-        return dict(await self._request("GET", "/printer/info"))
+        return await self._get_object("/printer/info")
 
     async def server_info(self) -> dict[str, Any]:
         """Moonraker's ``/server/info``, including ``klippy_state``."""
-        return dict(await self._request("GET", "/server/info"))
+        return await self._get_object("/server/info")
 
     async def objects_list(self) -> list[str]:
         """Names of every printer object Klippy has loaded."""
-        result = await self._request("GET", "/printer/objects/list")
-        return list(result["objects"])
+        what = "GET /printer/objects/list"
+        result = await self._channel.request("GET", "/printer/objects/list")
+        return self._shapes.names(self._shapes.field(result, "objects", what), what)
 
     async def objects_query(self, objects: Mapping[str, list[str] | None]) -> Status:
         """Current values of ``objects`` (``None`` = every field of that object)."""
         if self.session.connected:
-            result = await self._over_socket("printer.objects.query", {"objects": dict(objects)})
-            return dict(result["status"])
+            result = await self._channel.rpc("printer.objects.query", {"objects": dict(objects)})
+            return self._shapes.status(result, "printer.objects.query")
         params = {obj: ",".join(fields) if fields else "" for obj, fields in objects.items()}
-        result = await self._request("GET", "/printer/objects/query", params=params)
-        return dict(result["status"])
+        result = await self._channel.request("GET", "/printer/objects/query", params=params)
+        return self._shapes.status(result, "GET /printer/objects/query")
 
     async def gcode_script(self, script: str, timeout: float | None = None) -> str:
         """Run G-code; returns when Klippy has finished it (which may take minutes)."""
         limit = GCODE_TIMEOUT if timeout is None else httpx.Timeout(timeout, connect=3.0)
-        result = await self._request(
+        result = await self._channel.request(
             "POST", "/printer/gcode/script", params={"script": script}, timeout=limit
         )
         return str(result)
 
     async def print_start(self, filename: str) -> None:
         """Start printing ``filename`` (relative to the gcodes root)."""
-        await self._request(
+        await self._channel.request(
             "POST", "/printer/print/start", params={"filename": filename}, timeout=ACTION_TIMEOUT
         )
 
@@ -181,35 +174,52 @@ class MoonrakerClient:
         slows a bulk action down; the socket is already open.
         """
         if self.session.connected:
-            await self._over_socket(method, None, ACTION_TIMEOUT.read or 60.0)
+            await self._channel.rpc(method, None, ACTION_TIMEOUT.read or 60.0)
         else:
-            await self._request("POST", path, timeout=ACTION_TIMEOUT)
+            await self._channel.request("POST", path, timeout=ACTION_TIMEOUT)
 
     async def emergency_stop(self) -> None:
-        """Stop the machine now (``/printer/emergency_stop``, never ``M112`` queued as G-code)."""
-        await self._request("POST", "/printer/emergency_stop")
+        """Stop the machine now (Moonraker's emergency stop, never ``M112`` queued as G-code).
+
+        Over the open WebSocket first: the fastest way there, with no connection to make.
+        If the socket drops under it, the stop goes again over HTTP (a second e-stop is
+        harmless; a lost one is not). A Moonraker that stops answering on an open socket
+        would not answer HTTP either: that fails as unreachable, at once.
+        """
+        if self.session.connected:
+            try:
+                await self._channel.rpc("printer.emergency_stop", None)
+            except PrinterUnreachable as exc:
+                if self.session.connected:
+                    raise
+                log.warning("%s: e-stop over the WebSocket failed (%s); HTTP now", self.name, exc)
+            else:
+                return
+        await self._channel.request("POST", "/printer/emergency_stop")
 
     async def restart(self) -> None:
         """Restart Klippy's host software (re-reads printer.cfg)."""
-        await self._request("POST", "/printer/restart", timeout=ACTION_TIMEOUT)
+        await self._channel.request("POST", "/printer/restart", timeout=ACTION_TIMEOUT)
 
     async def firmware_restart(self) -> None:
         """Restart the MCU firmware and Klippy; the way out of ``shutdown``."""
-        await self._request("POST", "/printer/firmware_restart", timeout=ACTION_TIMEOUT)
+        await self._channel.request("POST", "/printer/firmware_restart", timeout=ACTION_TIMEOUT)
 
     # -- files -------------------------------------------------------------------------
 
     async def files_list(self, root: str = "gcodes") -> list[dict[str, Any]]:
         """Every file under ``root``: ``[{path, modified, size, permissions}]``."""
-        return list(await self._request("GET", "/server/files/list", params={"root": root}))
+        result = await self._channel.request("GET", "/server/files/list", params={"root": root})
+        return self._shapes.objects(result, "GET /server/files/list")
 
     async def file_metadata(self, filename: str) -> dict[str, Any]:
         """Slicer metadata Moonraker parsed from the file's header."""
         params = {"filename": filename}
         if not self.session.connected:
-            return dict(await self._request("GET", "/server/files/metadata", params=params))
+            return await self._get_object("/server/files/metadata", params=params)
         try:
-            return dict(await self._over_socket("server.files.metadata", params))
+            result = await self._channel.rpc("server.files.metadata", params)
+            return self._shapes.object(result, "server.files.metadata")
         except MoonrakerRpcError as exc:
             # Over JSON-RPC Moonraker says -32601 where HTTP says 404: keep one meaning.
             if "not available" in exc.detail:
@@ -219,11 +229,12 @@ class MoonrakerClient:
     async def file_thumbnails(self, filename: str) -> list[dict[str, Any]]:
         """Thumbnails of a file: ``[{width, height, size, thumbnail_path}]``."""
         params = {"filename": filename}
-        return list(await self._request("GET", "/server/files/thumbnails", params=params))
+        result = await self._channel.request("GET", "/server/files/thumbnails", params=params)
+        return self._shapes.objects(result, "GET /server/files/thumbnails")
 
     async def download(self, path: str, root: str = "gcodes") -> bytes:
         """The raw bytes of a file (a G-code, or a thumbnail under ``.thumbs/``)."""
-        response = await self._send("GET", f"/server/files/{root}/{quote(path)}")
+        response = await self._channel.send("GET", f"/server/files/{root}/{quote(path)}")
         return response.content
 
     async def upload(
@@ -233,124 +244,53 @@ class MoonrakerClient:
 
         ``content`` may be an open binary file: it is streamed, never loaded whole.
         """
+        # Up to 512 MiB read and hashed: in a worker thread, never on the event loop.
+        checksum = await asyncio.to_thread(_sha256, content)
         data = {
             "root": root,
-            "checksum": _sha256(content),
+            "checksum": checksum,
             "print": "true" if start else "false",
         }
         files = {"file": (filename, content, "application/octet-stream")}
-        response = await self._send(
+        response = await self._channel.send(
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )
         # The one Moonraker endpoint whose answer is not wrapped in {"result": ...}.
-        return dict(json_body(response, self.name))
+        return self._shapes.object(json_body(response, self.name), "POST /server/files/upload")
 
     async def delete_file(self, path: str, root: str = "gcodes") -> None:
         """Delete a file."""
-        await self._request("DELETE", f"/server/files/{root}/{quote(path)}")
+        await self._channel.request("DELETE", f"/server/files/{root}/{quote(path)}")
 
     # -- history, console, webcams -----------------------------------------------------
 
     async def history_list(self, limit: int = 50, start: int = 0) -> dict[str, Any]:
         """Past jobs, newest first: ``{count, jobs: [...]}``."""
         params = {"limit": str(limit), "start": str(start), "order": "desc"}
-        return dict(await self._request("GET", "/server/history/list", params=params))
+        return await self._get_object("/server/history/list", params=params)
 
     async def history_totals(self) -> dict[str, Any]:
         """Totals over every job: ``{job_totals: {total_jobs, total_time, ...}}``."""
-        return dict(await self._request("GET", "/server/history/totals"))
+        return await self._get_object("/server/history/totals")
 
     async def gcode_store(self, count: int = 100) -> list[dict[str, Any]]:
         """The console's recent commands and responses: ``[{message, time, type}]``."""
-        result = await self._request("GET", "/server/gcode_store", params={"count": str(count)})
-        return list(result["gcode_store"])
+        what = "GET /server/gcode_store"
+        result = await self._channel.request(
+            "GET", "/server/gcode_store", params={"count": str(count)}
+        )
+        return self._shapes.objects(self._shapes.field(result, "gcode_store", what), what)
 
     async def webcams_list(self) -> list[dict[str, Any]]:
         """Configured webcams: ``[{name, stream_url, snapshot_url, ...}]``."""
-        return list((await self._request("GET", "/server/webcams/list"))["webcams"])
+        what = "GET /server/webcams/list"
+        result = await self._channel.request("GET", "/server/webcams/list")
+        return self._shapes.objects(self._shapes.field(result, "webcams", what), what)
 
-    # -- HTTP plumbing -----------------------------------------------------------------
-
-    async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
-        """Send a request and unwrap Moonraker's ``{"result": ...}``."""
-        body = json_body(await self._send(method, path, **kwargs), self.name)
-        if not isinstance(body, dict) or "result" not in body:
-            raise MoonrakerRpcError(
-                -1, f"unexpected answer to {method} {path}: no 'result'", printer=self.name
-            )
-        return body["result"]
-
-    async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        url = self.base_url + path
-        request = asyncio.ensure_future(
-            self._http.request(method, url, headers=self._headers, **kwargs)
-        )
-        try:
-            await self._wait_while_alive(request, method, path)
-            response = await request
-        except httpx.TimeoutException as exc:
-            raise PrinterTimeout(
-                f"Moonraker at {self.base_url} did not answer {method} {path} in time. "
-                "Check the printer's network; retry later.",
-                printer=self.name,
-            ) from exc
-        except httpx.TransportError as exc:
-            problem = transport_problem(self.base_url, exc)
-            raise PrinterUnreachable(problem, printer=self.name) from exc
-        finally:
-            if not request.done():
-                request.cancel()
-                with contextlib.suppress(asyncio.CancelledError, httpx.HTTPError):
-                    await request
-        if response.is_success:
-            return response
-        raise http_error(response, path, self.name)
-
-    async def _over_socket(
-        self, method: str, params: Mapping[str, Any] | None, timeout: float = 10.0
-    ) -> Any:
-        """A JSON-RPC call on the live session, failed early if Moonraker stops answering."""
-        call = asyncio.ensure_future(self.session.call(method, params, timeout))
-        try:
-            await self._wait_while_alive(call, "RPC", method)
-            return await call
-        finally:
-            if not call.done():
-                call.cancel()
-                with contextlib.suppress(asyncio.CancelledError, PrinterError):
-                    await call
-
-    async def _wait_while_alive(
-        self, request: asyncio.Future[httpx.Response], method: str, path: str
-    ) -> None:
-        """Wait for ``request``; fail it as unreachable if Moonraker stops answering."""
-        while not request.done():
-            done, _ = await asyncio.wait({request}, timeout=PROBE_AFTER)
-            if done:
-                continue
-            # A ping over the live session; without one, a fresh small HTTP request.
-            alive = await self.session.alive(PROBE_TIMEOUT) if self.session.running else None
-            if alive is None:
-                alive = await self._http_alive()
-            if alive is False and not request.done():
-                raise PrinterUnreachable(
-                    f"Moonraker at {self.base_url} stopped answering (nothing within "
-                    f"{PROBE_TIMEOUT:g} s) while KyberCore waited for {method} {path}. "
-                    "The printer may have run the command or not: check it before retrying.",
-                    printer=self.name,
-                )
-
-    async def _http_alive(self) -> bool | None:
-        """Whether ``/server/info`` answers within PROBE_TIMEOUT (None: it cannot tell)."""
-        try:
-            await self._http.get(
-                self.base_url + "/server/info", headers=self._headers, timeout=PROBE_TIMEOUT
-            )
-        except httpx.TimeoutException:
-            return False
-        except httpx.HTTPError:
-            return None
-        return True
+    async def _get_object(self, path: str, **kwargs: Any) -> dict[str, Any]:
+        """``GET path``, whose result must be a JSON object."""
+        result = await self._channel.request("GET", path, **kwargs)
+        return self._shapes.object(result, f"GET {path}")
 
 
 def _sha256(content: bytes | BinaryIO) -> str:
@@ -365,5 +305,3 @@ def _sha256(content: bytes | BinaryIO) -> str:
 
 def _ignore(_event: SessionEvent) -> None:
     """Default event sink for clients used for HTTP only."""
-
-

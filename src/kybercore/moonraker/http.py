@@ -13,10 +13,11 @@ import orjson
 
 from kybercore.errors import (
     KlippyNotReady,
+    KyberCoreError,
     MoonrakerRpcError,
     PrinterAuthFailed,
-    PrinterError,
 )
+from kybercore.moonraker.refusals import auth_failure, http_reason, refusal
 
 REQUEST_TIMEOUT: Final = httpx.Timeout(10.0, connect=3.0)
 # `/printer/gcode/script` answers only when the G-code has run: M109 or G28 take minutes.
@@ -49,21 +50,27 @@ def json_body(response: httpx.Response, printer: str) -> Any:
         ) from None
 
 
-def http_error(response: httpx.Response, path: str, printer: str) -> PrinterError:
+def http_error(response: httpx.Response, path: str, printer: str) -> KyberCoreError:
     """The typed error for a Moonraker answer that is not a success."""
     status = response.status_code
     try:
         error = orjson.loads(response.content).get("error", {})
-        message = str(error.get("message", "")) if isinstance(error, dict) else str(error)
     except (orjson.JSONDecodeError, AttributeError):
-        message = response.text[:200]
-    if status in (401, 403):
+        error = response.text[:200]
+    if isinstance(error, dict):
+        message = http_reason(
+            status, str(error.get("message", "")), str(error.get("traceback") or "")
+        )
+    else:
+        message = str(error)
+    if auth_failure(status, message):
         return PrinterAuthFailed(
             f"Moonraker refused the request (HTTP {status}): the API key is missing or wrong. "
             "Set the printer's api_key to the key from Moonraker's /access/api_key.",
             printer=printer,
         )
-    if path.startswith("/printer/") and (status == 404 or "klippy" in message.lower()):
+    klippy_away = status != 400 and "klippy" in message.lower()  # a 400 is Klipper's refusal
+    if path.startswith("/printer/") and (status == 404 or klippy_away):
         # Klippy registers the /printer/* endpoints, so they 404 until it first connects;
         # once known, they answer 503 "Klippy Host not connected" while it is away.
         return KlippyNotReady(
@@ -71,22 +78,5 @@ def http_error(response: httpx.Response, path: str, printer: str) -> PrinterErro
             "klippy.log on the printer.",
             printer=printer,
         )
-    return MoonrakerRpcError(status, message or response.reason_phrase, printer=printer)
-
-
-def transport_problem(base_url: str, exc: httpx.TransportError) -> str:
-    """What a failed connection means, in words a person can act on."""
-    causes = []
-    cause: BaseException | None = exc
-    while cause is not None:
-        causes.append(cause)
-        cause = cause.__cause__ or cause.__context__
-    lowered = " ".join(str(c) for c in causes).lower()
-    if any(isinstance(c, ConnectionRefusedError) for c in causes) or "refused" in lowered:
-        return f"connection refused by {base_url}. Is Moonraker running, and is the port right?"
-    if "name or service not known" in lowered or "name resolution" in lowered:
-        return (
-            f"the host name in {base_url} cannot be resolved. Check the printer's URL "
-            "or use its IP address."
-        )
-    return f"cannot reach Moonraker at {base_url} ({exc or type(exc).__name__}). Retry later."
+    error = MoonrakerRpcError(status, message or response.reason_phrase, printer=printer)
+    return refusal(error, path) or error

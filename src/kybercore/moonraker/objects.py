@@ -67,12 +67,40 @@ def klippy_state_after(current: str, method: str, params: list[Any] | None = Non
     """
     if method in _NOTIFICATION_STATES:
         return _NOTIFICATION_STATES[method]
-    if method == "notify_status_update" and params:
-        first = params[0]
-        if isinstance(first, Mapping):
-            webhooks = first.get("webhooks")
-            if isinstance(webhooks, Mapping):
-                state = webhooks.get("state")
-                if isinstance(state, str) and state in KLIPPY_STATES:
-                    return state
+    if method == "notify_status_update" and params and isinstance(params[0], Mapping):
+        return klippy_state_in(params[0]) or current
     return current
+
+
+def klippy_state_in(status: Mapping[str, Any]) -> str | None:
+    """Klippy's state as a status or delta carries it (``webhooks.state``), if it does."""
+    webhooks = status.get("webhooks")
+    if isinstance(webhooks, Mapping):
+        state = webhooks.get("state")
+        if isinstance(state, str) and state in KLIPPY_STATES:
+            return state
+    return None
+
+
+def status_objects(status: Mapping[str, Any]) -> Status:
+    """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
+    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
+    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
+
+
+def snapshot_status(result: Any) -> Status | None:
+    """The status in a ``printer.objects.subscribe`` (or query) answer; ``None`` if none."""
+    status = result.get("status") if isinstance(result, dict) else None
+    return status_objects(status) if isinstance(status, dict) else None
+
+
+def with_klippy_state(
+    subscription: Mapping[str, list[str] | None],
+) -> dict[str, list[str] | None]:
+    """``subscription`` with ``webhooks.state`` in it: every snapshot and delta then says
+    Klippy's state, which is how the session follows it."""
+    objects = dict(subscription)
+    fields = objects.get("webhooks", [])
+    if fields is not None and "state" not in fields:
+        objects["webhooks"] = [*fields, "state"]
+    return objects

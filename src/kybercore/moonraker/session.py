@@ -3,23 +3,29 @@
 The session identifies itself as an agent, waits while Klippy starts, subscribes to the
 objects it was given and hands every notification to a callback. When the socket drops,
 every pending call fails at once with :class:`PrinterUnreachable` and the session
-reconnects by itself, forever, with capped exponential backoff and jitter; after each
-reconnect (and after ``notify_klippy_ready``) it subscribes again. The socket itself is
-:mod:`kybercore.moonraker.link`; what the session reports is in
-:mod:`kybercore.moonraker.events`, its reconnect delays in :mod:`kybercore.moonraker.backoff`.
+reconnects by itself, forever, with capped exponential backoff and jitter (but every second
+or so while a printer that was just healthy refuses connections: a restart); after each
+reconnect (and after ``notify_klippy_ready``) it subscribes again.
+
+Klippy's state is what Moonraker last said, in the order it said it: each notification,
+and the ``webhooks.state`` of each subscription snapshot as its answer is read. A
+``server.info`` answer only fills in while nothing can be subscribed to.
+
+The socket itself is :mod:`kybercore.moonraker.link`; what the session reports is in
+:mod:`kybercore.moonraker.events`, its reconnect delays in :mod:`kybercore.moonraker.backoff`,
+and the changes it logs in :mod:`kybercore.moonraker.statelog`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import logging
 import time
 from collections.abc import Mapping
 from typing import Any, Final
+from urllib.parse import urlsplit
 
-import orjson
 import picows
 
 from kybercore.aio import cancel_and_wait
@@ -28,9 +34,9 @@ from kybercore.errors import (
     MoonrakerRpcError,
     PrinterAuthFailed,
     PrinterError,
-    PrinterTimeout,
     PrinterUnreachable,
 )
+from kybercore.moonraker.answers import malformed
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -42,7 +48,16 @@ from kybercore.moonraker.events import (
     StatusSnapshot,
 )
 from kybercore.moonraker.link import Connect, LinkLost, MoonrakerLink, open_link
-from kybercore.moonraker.objects import Status, klippy_state_after
+from kybercore.moonraker.objects import (
+    klippy_state_after,
+    klippy_state_in,
+    snapshot_status,
+    status_objects,
+    with_klippy_state,
+)
+from kybercore.moonraker.reach import connect_problem, connection_refused
+from kybercore.moonraker.rpc import PendingCalls
+from kybercore.moonraker.statelog import StateLog
 
 log = logging.getLogger(__name__)
 
@@ -84,18 +99,20 @@ class MoonrakerSession:
         self.ws_url = ws_url
         self.name = name
         self._api_key = api_key
-        self._subscription = dict(subscription)
+        self._subscription = with_klippy_state(subscription)
         self._on_event = on_event
         self._client_name = client_name
         self._version = version
         self._connect = connect
         self._backoff = backoff or Backoff()
-        self._ids = itertools.count(1)
-        self._pending: dict[int, asyncio.Future[Any]] = {}
-        self._methods: dict[int, str] = {}
+        self._calls = PendingCalls(name)
         self._link: MoonrakerLink | None = None
         self._task: asyncio.Task[None] | None = None
         self._klippy_event = asyncio.Event()
+        self._states = StateLog(name)
+        self._klippy_news = 0
+        """How many times a notification or a snapshot told Klippy's state: an answer to a
+        ``server.info`` sent before the count last moved is older than what we know."""
         self._up = False
         """This connection got as far as a valid ``server.info``: Moonraker really answered."""
         self.connection = "connecting"
@@ -136,23 +153,7 @@ class MoonrakerSession:
                 f"not connected to Moonraker at {self.ws_url} ({self.last_error or 'connecting'})",
                 printer=self.name,
             )
-        req_id = next(self._ids)
-        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        self._pending[req_id] = future
-        self._methods[req_id] = method
-        request: dict[str, Any] = {"jsonrpc": "2.0", "method": method, "id": req_id}
-        if params is not None:
-            request["params"] = dict(params)
-        try:
-            link.send(orjson.dumps(request))
-            return await asyncio.wait_for(future, timeout)
-        except TimeoutError as exc:
-            raise PrinterTimeout(
-                f"Moonraker did not answer '{method}' within {timeout:g} s", printer=self.name
-            ) from exc
-        finally:
-            self._pending.pop(req_id, None)
-            self._methods.pop(req_id, None)
+        return await self._calls.call(link.send, method, params, timeout)
 
     async def alive(self, timeout: float) -> bool | None:
         """Whether Moonraker answers a ping within ``timeout`` s right now.
@@ -165,21 +166,19 @@ class MoonrakerSession:
         return None if link is None else await link.ping(timeout)
 
     async def resubscribe(self) -> None:
-        """Subscribe again (for example after changing what to watch)."""
+        """Subscribe again (for example after changing what to watch).
+
+        The snapshot (and the Klippy state in it) is reported as its answer is read, in
+        order with the notifications around it: see :meth:`_answered`.
+        """
         result = await self.call("printer.objects.subscribe", {"objects": self._subscription})
-        status = result.get("status") if isinstance(result, dict) else None
-        if not isinstance(status, dict):
+        if snapshot_status(result) is None:
             raise self._malformed("printer.objects.subscribe", "no 'status' object")
-        self._emit(StatusSnapshot(status=status_objects(status)))
 
     # -- internals ---------------------------------------------------------------------
 
     def _malformed(self, method: str, why: str) -> MoonrakerRpcError:
-        return MoonrakerRpcError(
-            -32603,
-            f"unexpected answer to '{method}' ({why}). Is {self.ws_url} really Moonraker?",
-            printer=self.name,
-        )
+        return malformed(method, why, self.ws_url, self.name)
 
     def _emit(self, event: SessionEvent) -> None:
         """Hand an event to the owner; its bugs are logged, never allowed to kill the link."""
@@ -195,14 +194,26 @@ class MoonrakerSession:
             printer=self.name,
         )
 
+    def _describe(self, exc: BaseException) -> str:
+        if isinstance(exc, PrinterError):
+            return exc.message
+        if isinstance(exc, picows.WSError):
+            return str(exc) or type(exc).__name__
+        where = urlsplit(self.ws_url).netloc
+        return connect_problem(exc, where, OPEN_TIMEOUT if isinstance(exc, TimeoutError) else None)
+
     def _set_connection(self, connection: str, detail: str = "") -> None:
         if connection != self.connection or detail != self.last_error:
             self.connection = connection
             self.last_error = detail
+            if self._task is not None:  # stop() clears it: a deliberate stop is no news
+                self._states.connection(connection, detail)
             self._emit(ConnectionChanged(connection, detail))
 
     def _set_klippy(self, state: str, message: str = "") -> None:
         if state != self.klippy_state:
+            if self._task is not None:
+                self._states.klippy(state, self.klippy_state, message)
             self.klippy_state = state
             self._emit(KlippyChanged(state, message))
 
@@ -211,7 +222,7 @@ class MoonrakerSession:
             started = time.monotonic()
             connected_for = 0.0
             retry_after: float | None = None
-            peer_left = False
+            peer_left = refused = False
             self._up = False
             link: MoonrakerLink | None = None
             try:
@@ -248,7 +259,8 @@ class MoonrakerSession:
             except (OSError, TimeoutError, picows.WSError, PrinterError) as exc:
                 # OSError: Moonraker's socket refused or reset us (a restart, most likely).
                 peer_left = isinstance(exc, OSError)
-                self._drop(_describe(exc))
+                refused = connection_refused(exc)
+                self._drop(self._describe(exc))
             except Exception as exc:
                 # A bug, or a Moonraker answer no one foresaw: the session must outlive it
                 # (a dead task would leave the printer shown "online" and frozen forever).
@@ -261,22 +273,18 @@ class MoonrakerSession:
                 # After _drop: pending calls fail at once, not after the goodbye.
                 if link is not None:
                     await link.close(CLOSE_TIMEOUT)
-            if peer_left and self._up:
-                # A healthy session ended by Moonraker (a restart): come back at once, however
-                # many restarts came before. Faults we detected keep backing off.
-                self._backoff.reset()
+            if self._up:
+                # Moonraker answered on this connection: if it ended it (a restart), come
+                # back at once; refusals soon after are a restart too (see Backoff).
+                self._backoff.healthy_session_ended(by_peer=peer_left)
             connected_for = time.monotonic() - started
-            delay = self._backoff.next_delay(connected_for)
+            delay = self._backoff.next_delay(connected_for, refused=refused)
             await asyncio.sleep(retry_after if retry_after is not None else delay)
 
     def _drop(self, why: str, connection: str = "offline") -> None:
         """Forget the socket and fail every pending call at once."""
         self._link = None
-        error = self._unreachable(why)
-        for future in self._pending.values():
-            if not future.done():
-                future.set_exception(error)
-        self._pending.clear()
+        self._calls.fail_all(self._unreachable(why))
         self._set_klippy("disconnected")
         self._set_connection(connection, why)
 
@@ -320,6 +328,7 @@ class MoonrakerSession:
         """Poll ``server.info`` until Klippy can be subscribed to, then wait for news."""
         while True:
             self._klippy_event.clear()
+            news = self._klippy_news
             info = await self.call("server.info")
             if not isinstance(info, dict):
                 raise self._malformed("server.info", "not an object")
@@ -327,30 +336,23 @@ class MoonrakerSession:
             state = str(info.get("klippy_state", "disconnected"))
             if info.get("klippy_connected") and state in _SUBSCRIBABLE_STATES:
                 try:
+                    # The snapshot's webhooks.state, not this server.info, sets the state:
+                    # Klippy may have shut down in between.
                     await self.resubscribe()
                 except (KlippyNotReady, MoonrakerRpcError) as exc:
                     log.info("%s: subscribe failed, retrying: %s", self.name, exc)
                     await asyncio.sleep(KLIPPY_POLL_SECONDS)
                     continue
-                self._set_klippy(state)
                 await self._klippy_event.wait()
             else:
-                self._set_klippy(state)
+                if self._klippy_news == news:  # nothing newer arrived while we asked
+                    self._set_klippy(state)
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._klippy_event.wait(), KLIPPY_POLL_SECONDS)
 
     def _dispatch(self, message: dict[str, Any]) -> None:
         if "id" in message and ("result" in message or "error" in message):
-            future = self._pending.get(message["id"]) if isinstance(message["id"], int) else None
-            if future is None or future.done():
-                return
-            error = message.get("error")
-            if error is None:
-                future.set_result(message.get("result"))
-            else:
-                future.set_exception(
-                    _rpc_error(error, self._methods.get(message["id"], ""), self.name)
-                )
+            self._calls.answer(message, self._answered)
             return
         method = message.get("method")
         if not isinstance(method, str):
@@ -360,47 +362,27 @@ class MoonrakerSession:
         if method == "notify_status_update":
             if params and isinstance(params[0], dict):
                 eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
-                self._emit(StatusDelta(delta=status_objects(params[0]), eventtime=eventtime))
-            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+                delta = status_objects(params[0])
+                self._emit(StatusDelta(delta=delta, eventtime=eventtime))
+                self._hear_klippy(klippy_state_in(delta))
             return
         if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
             self._klippy_event.set()
         if method.startswith("notify_klippy_"):
-            self._set_klippy(klippy_state_after(self.klippy_state, method, params))
+            self._hear_klippy(klippy_state_after(self.klippy_state, method, params))
             return
         self._emit(Notification(method, params))
 
+    def _answered(self, method: str, result: Any) -> None:
+        """A subscription's answer, handled as it is read: its snapshot and Klippy's state
+        in it are newer than every notification before it and older than any after it."""
+        status = snapshot_status(result) if method == "printer.objects.subscribe" else None
+        if status is not None:
+            self._emit(StatusSnapshot(status=status))
+            self._hear_klippy(klippy_state_in(status))
 
-def status_objects(status: Mapping[str, Any]) -> Status:
-    """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
-    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
-    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
-
-
-def _rpc_error(error: Any, method: str, printer: str) -> PrinterError:
-    raw_code = error.get("code") if isinstance(error, dict) else None
-    code = raw_code if isinstance(raw_code, int) and not isinstance(raw_code, bool) else -1
-    text = str(error.get("message", error)) if isinstance(error, dict) else str(error)
-    # Moonraker answers a bad key in `identify` with -32602 "Invalid API Key".
-    if code in (401, 403) or "api key" in text.lower() or "unauthorized" in text.lower():
-        return PrinterAuthFailed(
-            f"Moonraker refused the API key ({text}). Fix the printer's api_key.", printer=printer
-        )
-    # Klippy registers the printer.* methods, so they are "not found" until it connects.
-    if code == -32601 and method.startswith("printer."):
-        return KlippyNotReady(
-            "Klippy is not connected to Moonraker; wait for it or restart the firmware.",
-            printer=printer,
-        )
-    return MoonrakerRpcError(code, text, printer=printer)
-
-
-def _describe(exc: BaseException) -> str:
-    if isinstance(exc, ConnectionRefusedError):
-        return "connection refused (is Moonraker running on that port?)"
-    if isinstance(exc, TimeoutError):
-        return "timed out while connecting"
-    if isinstance(exc, PrinterError):
-        return exc.message
-    text = str(exc) or type(exc).__name__
-    return text
+    def _hear_klippy(self, state: str | None) -> None:
+        """Klippy's state as Moonraker just told it (``None``: it did not say)."""
+        if state is not None:
+            self._klippy_news += 1
+            self._set_klippy(state)
