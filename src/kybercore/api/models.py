@@ -68,6 +68,10 @@ class FleetActionRequest(ActionRequest):
         min_length=1, max_length=10_000, description="Printers to act on, by id."
     )
 
+    def params(self) -> dict[str, Any]:
+        """The action's parameters: which printers is not one of them."""
+        return self.model_dump(exclude={"force", "confirm", "printer_ids"}, exclude_none=True)
+
 
 class GcodeRequest(_In):
     """A G-code script to run on one printer."""

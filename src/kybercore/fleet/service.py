@@ -155,9 +155,11 @@ class FleetService:
         await asyncio.to_thread(self.registry.remove, printer_id)
         self.sessions.apply(self.registry.printers)
 
-    def _on_file_change(self, printers: list[PrinterConfig]) -> None:
+    def _on_file_change(self, _read: list[PrinterConfig]) -> None:
+        # Not the list the watcher read: an API write may have landed since (the watcher
+        # reads in a worker thread), and the registry always holds the newest fleet.
         self.config_error = None
-        self.sessions.apply(printers)
+        self.sessions.apply(self.registry.printers)
         self.hub.event({"type": "config", "ok": True, "message": "printers.json reloaded"})
 
     def _on_file_error(self, error: ConfigError) -> None:
