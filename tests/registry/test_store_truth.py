@@ -79,4 +79,3 @@ async def test_reading_the_fleet_on_the_loop_never_waits_for_a_writer(tmp_path: 
         await asyncio.wait_for(write, 10)
     assert registry.get("a").notes == "edited"
     assert slow.lines == [], slow.lines
-

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
+import weakref
 from collections.abc import Awaitable
 from dataclasses import dataclass, field
 from typing import Any, Final
@@ -22,6 +23,7 @@ from kybercore.fleet.hub import Hub
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import (
     ConnectionChanged,
+    EventCallback,
     KlippyChanged,
     Notification,
     SessionEvent,
@@ -86,13 +88,17 @@ class Sessions:
         printer = self._printers.get(printer_id)
         return None if printer is None else fuse(printer.config, printer.live)
 
-    def apply(self, printers: list[PrinterConfig]) -> None:
+    def apply(self, printers: list[PrinterConfig]) -> asyncio.Future[Any]:
         """Make the running sessions match ``printers`` (start, stop or restart them) and
-        publish the result at once, so the fleet list shows it when a request returns."""
+        publish the result at once, so the fleet list shows it when a request returns.
+
+        Sessions no longer wanted close in the background; await the result to wait for
+        them (it never raises)."""
         wanted = {p.id: p for p in printers}
+        closing = []
         for printer_id in list(self._printers):
             if printer_id not in wanted:
-                self._spawn(self._close(self._printers.pop(printer_id)))
+                closing.append(self._spawn(self._close(self._printers.pop(printer_id))))
                 self._hub.mark(printer_id)
         for printer_id, config in wanted.items():
             current = self._printers.get(printer_id)
@@ -100,10 +106,11 @@ class Sessions:
                 current.config = config
             else:
                 if current is not None:
-                    self._spawn(self._close(current))
+                    closing.append(self._spawn(self._close(current)))
                 self._printers[printer_id] = self._open(config)
             self._hub.mark(printer_id)
         self._hub.flush()
+        return asyncio.gather(*closing, return_exceptions=True)
 
     async def close(self) -> None:
         """Close every session and stop background work."""
@@ -121,11 +128,26 @@ class Sessions:
             self._http,
             name=config.id,
             api_key=config.api_key.get_secret_value() if config.api_key else None,
-            on_event=lambda event: self._on_event(printer, event),
+            on_event=self._events_of(printer),
             connect=self._connect,
         )
         printer.client.start()
         return printer
+
+    def _events_of(self, printer: FleetPrinter) -> EventCallback:
+        """The session's event callback for ``printer``. It holds the printer weakly: a
+        strong reference would close the cycle printer -> client -> session -> callback ->
+        printer, which ``gc.freeze()`` (``kybercore serve``) makes immortal, so every
+        removed or re-sessioned printer would leak. The session of a replaced printer
+        reports to that printer, never to its successor under the same id."""
+        ref = weakref.ref(printer)
+
+        def on_event(event: SessionEvent) -> None:
+            target = ref()
+            if target is not None:
+                self._on_event(target, event)
+
+        return on_event
 
     async def _close(self, printer: FleetPrinter) -> None:
         if printer.client is not None:
@@ -206,14 +228,11 @@ class Sessions:
             printer.live.klippy_message = str(info.get("state_message", ""))
             self._hub.mark(printer.config.id)
 
-    def _render(self, printer_id: str) -> View | None:
-        printer = self._printers.get(printer_id)
-        return None if printer is None else fuse(printer.config, printer.live)
-
-    def _spawn(self, work: Awaitable[Any]) -> None:
+    def _spawn(self, work: Awaitable[Any]) -> asyncio.Future[Any]:
         task = asyncio.ensure_future(work)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
+        return task
 
 
 def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
