@@ -14,7 +14,13 @@ from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.responses import Response
 
 from kybercore.api.deps import OPERATOR, VIEWER, Service
-from kybercore.api.models import ERROR_RESPONSES, ActionResult, FileItem, action_result
+from kybercore.api.models import (
+    ERROR_RESPONSES,
+    ActionResult,
+    FileItem,
+    FilePath,
+    action_result,
+)
 from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput
 
@@ -38,20 +44,22 @@ async def files(service: Service, printer_id: str) -> list[dict[str, Any]]:
     responses=ERROR_RESPONSES,
     dependencies=[OPERATOR],
 )
-async def delete_file(service: Service, printer_id: str, path: str) -> Response:
+async def delete_file(service: Service, printer_id: str, path: FilePath) -> Response:
     """Delete a G-code file (refused while it is being printed)."""
     await service.delete_file(printer_id, safe_path(path))
     return Response(status_code=204)
 
 
 @router.get("/metadata", responses=ERROR_RESPONSES, dependencies=[VIEWER])
-async def file_metadata(service: Service, printer_id: str, filename: str) -> dict[str, Any]:
+async def file_metadata(
+    service: Service, printer_id: str, filename: FilePath
+) -> dict[str, Any]:
     """What the slicer wrote in a file's header, as Moonraker parsed it."""
     return await service.file_metadata(printer_id, safe_path(filename))
 
 
 @router.get("/thumbnail", responses=ERROR_RESPONSES, dependencies=[VIEWER])
-async def thumbnail(service: Service, printer_id: str, path: str) -> Response:
+async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Response:
     """A thumbnail image (path as given by a file's metadata, relative to gcodes/)."""
     path = safe_path(path)
     if not path.lower().endswith((".png", ".jpg", ".jpeg")):

@@ -8,14 +8,16 @@ answers them alike.
 
 from __future__ import annotations
 
-from typing import Any, Final, Literal
+from typing import Annotated, Any, Final, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from fastapi import Query
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 from kybercore.api.errors import error_status
+from kybercore.core.paths import MAX_PATH, SAFE_PATH_PATTERN
 from kybercore.core.validation import Verdict
 from kybercore.fleet.actions import ActionOutcome, reason_dict
-from kybercore.registry.models import Capabilities
+from kybercore.registry.models import Capabilities, Url
 
 ActionName = Literal[
     "start",
@@ -32,6 +34,15 @@ ActionName = Literal[
 MAX_SCRIPT_CHARS = 64 * 1024
 
 
+SafePath = Annotated[
+    str,
+    StringConstraints(max_length=MAX_PATH),
+    Field(json_schema_extra={"pattern": SAFE_PATH_PATTERN}),
+]
+"""A file path relative to gcodes/, documented as :func:`~kybercore.core.paths.safe_path`
+checks it (the service still calls it, for its message)."""
+
+
 class _In(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -39,8 +50,8 @@ class _In(BaseModel):
 class ActionRequest(_In):
     """Parameters of an action; only those the action uses are read."""
 
-    filename: str | None = Field(
-        default=None, max_length=1024, description="start: the G-code file to print."
+    filename: SafePath | None = Field(
+        default=None, description="start: the G-code file to print, relative to gcodes/."
     )
     extruder: float | None = Field(
         default=None, ge=0, le=1000, description="set_temperature: hotend target in °C."
@@ -59,6 +70,18 @@ class ActionRequest(_In):
     def params(self) -> dict[str, Any]:
         """The action's parameters without the force/confirm flags."""
         return self.model_dump(exclude={"force", "confirm"}, exclude_none=True)
+
+
+FilePath = Annotated[
+    str,
+    Query(
+        max_length=MAX_PATH,
+        json_schema_extra={"pattern": SAFE_PATH_PATTERN},
+        description="A path relative to the printer's gcodes/ folder, without '..'.",
+    ),
+]
+"""A file path in a query string, documented as :func:`~kybercore.core.paths.safe_path`
+checks it (the route still calls it, for its message)."""
 
 
 class FleetActionRequest(ActionRequest):
@@ -222,7 +245,7 @@ class PrinterView(BaseModel):
     location: str
     tags: list[str]
     notes: str
-    moonraker_url: str
+    moonraker_url: Url
     api_key_set: bool
     enabled: bool
     capabilities: Capabilities = Field(

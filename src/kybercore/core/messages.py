@@ -42,10 +42,15 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
         "Moonraker ha rechazado la clave API de KyberCore. Configure la clave correcta de "
         "esta impresora en printers.json o con `kybercore printers edit`."),
     "klippy_shutdown": ("block", "state",
-        "Klipper is shut down. Only a firmware restart or a restart is possible: find the "
-        "cause in the console, fix it, then restart the firmware.",
-        "Klipper está detenido por un fallo (shutdown). Solo se puede reiniciar el firmware "
-        "o Klipper: busque la causa en la consola, corríjala y reinicie el firmware."),
+        "Klipper is shut down. Only a firmware restart brings it back: find the cause in the "
+        "console, fix it, then restart the firmware.",
+        "Klipper está detenido por un fallo (shutdown). Solo un reinicio del firmware lo "
+        "recupera: busque la causa en la consola, corríjala y reinicie el firmware."),
+    "restart_after_shutdown": ("block", "state",
+        "Klipper is shut down, and its MCU with it: a Klipper restart cannot configure a "
+        "shut-down MCU and would leave Klipper in error. Use firmware restart instead.",
+        "Klipper está detenido y su MCU también: reiniciar Klipper no puede configurar una "
+        "MCU detenida y dejaría Klipper en error. Use el reinicio del firmware."),
     "klippy_error": ("block", "state",
         "Klipper reported an error, often in its configuration. Only a firmware restart or a "
         "restart is possible: fix the cause shown in the console, then restart.",

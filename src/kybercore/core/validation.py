@@ -18,7 +18,9 @@ Why each file check is a block or a warning:
 * A missing fact is never guessed: without the file's value, the loaded material or the
   max_temp the check is skipped; starting a file with no metadata at all is a warning.
 
-Emergency stop needs only a connection and is never blocked by state. An upload without
+Emergency stop needs only a connection and is never blocked by state. After a shutdown only
+a firmware restart brings Klippy back: the MCU is shut down too, and a host restart would
+leave Klippy in error. An upload without
 ``start`` only stores a file, so its file checks are warnings at most. A G-code script is
 checked for what can be read from it; see :mod:`kybercore.core.gcode`.
 """
@@ -195,8 +197,13 @@ def _state_reasons(
     klippy, state = printer.klippy_state, printer.print_state
     if klippy in ("shutdown", "error"):
         script = params.get("script")
+        names = command_names(script) if action == "gcode" and isinstance(script, str) else []
+        if klippy == "shutdown" and (action == "restart" or "RESTART" in names):
+            # A shutdown stops the MCU too: a host restart cannot configure it again ("Can
+            # not update MCU config as it is shutdown") and leaves Klippy in error.
+            return [reason("restart_after_shutdown")]
         if action in ("firmware_restart", "restart") or (
-            action == "gcode" and isinstance(script, str) and _only_when_down(script)
+            names and all(n in _GCODE_WHEN_DOWN for n in names)
         ):
             return []
         return [reason(f"klippy_{klippy}")]
@@ -343,11 +350,6 @@ def _gcode_reasons(printer: PrinterFacts, script: Any, force: bool) -> list[Reas
             reasons.append(reason("gcode_move_outside_volume", line=line, axis=move.axis,
                                    low=float(low[i]), high=float(high[i])))  # fmt: skip
     return reasons
-
-
-def _only_when_down(script: str) -> bool:
-    names = command_names(script)
-    return bool(names) and all(n in _GCODE_WHEN_DOWN for n in names)
 
 
 # --- helpers -------------------------------------------------------------------------------
