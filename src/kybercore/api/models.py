@@ -251,6 +251,11 @@ class PrinterView(BaseModel):
     capabilities: Capabilities = Field(
         description="Effective limits: printers.json's values, else Klippy's."
     )
+    limits: Literal["known", "loading", "unknown"] = Field(
+        description="Whether the limits are known (printers.json gives them all, or Klippy's "
+        "configfile was read), loading (being read after a connect) or unknown (the read "
+        "failed and is retried). Until known, start, set_temperature and G-code are refused."
+    )
     connection: str = Field(description="connecting, online, offline, auth_failed or disabled.")
     connection_error: str
     klippy_state: str = Field(description="ready, startup, shutdown, error or disconnected.")

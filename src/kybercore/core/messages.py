@@ -95,6 +95,23 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
     "forced_during_print": ("warn", "state",
         "Forced during a print: the print will be lost.",
         "Acción forzada durante una impresión: la impresión se perderá."),
+    "limits_loading": ("block", "state",
+        "KyberCore is still reading this printer's limits (maximum temperatures, build "
+        "volume, nozzle) from Klipper after connecting, and checks this action against them. "
+        "Try again in a few seconds.",
+        "KyberCore todavía está leyendo de Klipper los límites de esta impresora "
+        "(temperaturas máximas, volumen de impresión, boquilla) tras conectarse, y comprueba "
+        "esta acción con ellos. Vuelva a intentarlo en unos segundos."),
+    "limits_unknown": ("block", "state",
+        "KyberCore could not read this printer's limits (maximum temperatures, build volume, "
+        "nozzle) from Klipper, so it cannot check this action against them. It keeps "
+        "retrying by itself; to act now, set the limits in the printer's settings "
+        "(printers.json). Emergency stop always works.",
+        "KyberCore no ha podido leer de Klipper los límites de esta impresora (temperaturas "
+        "máximas, volumen de impresión, boquilla), así que no puede comprobar esta acción con "
+        "ellos. Sigue reintentándolo por sí solo; para actuar ya, indique los límites en la "
+        "configuración de la impresora (printers.json). La parada de emergencia siempre "
+        "funciona."),
     "filename_missing": ("block", "limit",
         "Say which file to use (parameter 'filename').",
         "Indique qué archivo usar (parámetro «filename»)."),

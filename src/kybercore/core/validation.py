@@ -53,6 +53,9 @@ _NOZZLE_TOLERANCE: Final = 0.01
 _GCODE_WHEN_DOWN: Final = frozenset({"RESTART", "FIRMWARE_RESTART", "STATUS", "HELP", "ECHO"})
 _GCODE_RESTARTS: Final = ("SAVE_CONFIG", "FIRMWARE_RESTART", "RESTART")
 _BUSY: Final = ("printing", "paused")
+LIMITED_ACTIONS: Final = frozenset({"start", "upload", "set_temperature", "gcode"})
+"""Actions judged against the printer's limits (max temperatures, volume, nozzle): refused
+while the limits are not known. Never emergency stop, which must not wait for anything."""
 
 
 
@@ -107,6 +110,10 @@ class PrinterFacts:
     material: str | None = None
     max_extruder_temp: float | None = None
     max_bed_temp: float | None = None
+    limits: str = "known"
+    """Whether the limits above are all there is to know: ``known`` (from printers.json or
+    Klippy's configfile), ``loading`` (being read after a connect) or ``unknown`` (the
+    read failed; retried)."""
 
 
 def validate(
@@ -191,7 +198,31 @@ def connection_reasons(printer: PrinterFacts) -> list[Reason]:
 def _state_reasons(
     action: str, printer: PrinterFacts, params: Mapping[str, Any], force: bool
 ) -> list[Reason]:
-    """Rules on Klippy's state and the print state (file and parameters aside)."""
+    """Rules on Klippy's state, the print state and whether the limits are known (file and
+    parameters aside)."""
+    reasons = _klippy_and_print_reasons(action, printer, params, force)
+    if (
+        printer.limits != "known"
+        and _needs_limits(action, params)
+        and not any(r.level == "block" for r in reasons)
+    ):
+        # Without them the max-temp, volume and nozzle checks would silently pass.
+        reasons.append(reason(f"limits_{printer.limits}"))
+    return reasons
+
+
+def _needs_limits(action: str, params: Mapping[str, Any]) -> bool:
+    if action not in LIMITED_ACTIONS or (action == "upload" and not params.get("start")):
+        return False
+    script = params.get("script")
+    # A script of commands that move and heat nothing (STATUS, HELP...) needs no limits.
+    names = command_names(script) if action == "gcode" and isinstance(script, str) else []
+    return not names or not all(n in _GCODE_WHEN_DOWN for n in names)
+
+
+def _klippy_and_print_reasons(
+    action: str, printer: PrinterFacts, params: Mapping[str, Any], force: bool
+) -> list[Reason]:
     if action == "emergency_stop" or (action == "upload" and not params.get("start")):
         return []  # e-stop must always go through; storing a file does not need Klippy
     klippy, state = printer.klippy_state, printer.print_state

@@ -18,7 +18,7 @@ import picows
 
 from kybercore.aio import cancel_and_wait
 from kybercore.core.paths import safe_path
-from kybercore.core.validation import Verdict, connection_reasons, validate
+from kybercore.core.validation import LIMITED_ACTIONS, Verdict, connection_reasons, validate
 from kybercore.core.view import View, facts, fuse
 from kybercore.errors import (
     ActionRejected,
@@ -43,9 +43,7 @@ from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
 
-# Actions judged against the printer's limits (max temperatures, volume, nozzle); never
-# emergency stop, which must not wait for anything.
-NEEDS_LIMITS: Final = frozenset({"start", "set_temperature", "gcode"})
+# How long an action that needs the printer's limits waits for them after a connect.
 LIMITS_WAIT: Final = 5.0
 
 
@@ -184,7 +182,7 @@ class FleetService:
         """What would happen: the rules (with the file's real metadata) and, when one is
         configured, the advisor's warnings. Nothing is sent to the printer."""
         printer = self.sessions.get(printer_id)
-        if action in NEEDS_LIMITS:
+        if action in LIMITED_ACTIONS:
             await printer.wait_for_limits(LIMITS_WAIT)
         meta = await self._file_meta_for(printer, action, params)
         printer_facts = facts(printer.config, printer.live)
@@ -246,6 +244,7 @@ class FleetService:
         if start:
             # Refuse before sending the bytes when the printer cannot start anything now.
             printer = self.sessions.get(printer_id)
+            await printer.wait_for_limits(LIMITS_WAIT)
             verdict = validate(
                 "start", facts(printer.config, printer.live), params={"filename": filename}
             )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 import weakref
 from collections.abc import Awaitable
@@ -20,6 +21,7 @@ import httpx
 from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse
 from kybercore.errors import PrinterError, UnknownPrinter
 from kybercore.fleet.hub import Hub
+from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -36,8 +38,14 @@ from kybercore.registry.models import PrinterConfig
 
 LAST_SEEN_STEP: Final = 5.0
 
-# Settings read once from Klippy's configfile when printers.json does not give them.
+# Settings read from Klippy's configfile after every (re)subscription.
 _DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
+# A failed read is retried with backoff and jitter: after a KyberCore restart a thousand
+# printers connect at once, and the reads that failed must not all come back together.
+LIMITS_RETRY_FIRST: Final = 1.0
+LIMITS_RETRY_CAP: Final = 60.0
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -48,18 +56,20 @@ class FleetPrinter:
     client: MoonrakerClient | None
     """None while the printer is disabled."""
     live: LivePrinter = field(default_factory=LivePrinter)
-    limits_read: asyncio.Event = field(default_factory=asyncio.Event)
-    """Set once Klippy's configfile was read (or could not be) since the last snapshot."""
+    limits_tried: asyncio.Event = field(default_factory=asyncio.Event)
+    """Set once Klippy's configfile was read, or its read failed, since the last snapshot."""
+    limits_reader: asyncio.Task[None] | None = None
 
     async def wait_for_limits(self, timeout: float) -> None:
-        """Wait, at most ``timeout`` s, until the limits read after a (re)connect is done.
+        """Wait, at most ``timeout`` s, until the first limits read after a (re)connect
+        succeeded or failed (``live.limits`` then says which).
 
         A printer is online ~300 ms before its configfile arrives; an action checked in
-        that window would go without its max-temp, volume and nozzle checks.
+        that window is refused with ``limits_loading`` unless the read comes in time.
         """
-        if self.live.connection == "online" and not self.limits_read.is_set():
+        if self.live.connection == "online" and not self.limits_tried.is_set():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.limits_read.wait(), timeout)
+                await asyncio.wait_for(self.limits_tried.wait(), timeout)
 
 
 class Sessions:
@@ -150,6 +160,8 @@ class Sessions:
         return on_event
 
     async def _close(self, printer: FleetPrinter) -> None:
+        if printer.limits_reader is not None:
+            printer.limits_reader.cancel()
         if printer.client is not None:
             await printer.client.close()
 
@@ -163,8 +175,7 @@ class Sessions:
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
             self._follow_file(printer)
-            printer.limits_read.clear()
-            self._spawn(self._detect_capabilities(printer))
+            self._read_limits(printer)
         elif isinstance(event, ConnectionChanged):
             live.connection = event.connection
             live.connection_error = event.detail
@@ -209,16 +220,36 @@ class Sessions:
             printer.live.file_meta = {**meta, "filename": filename}
             self._hub.mark(printer.config.id)
 
-    async def _detect_capabilities(self, printer: FleetPrinter) -> None:
-        if printer.client is None:
-            return
-        try:
-            with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
-                status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
+    def _read_limits(self, printer: FleetPrinter) -> None:
+        """(Re)start reading the limits: Klippy may have restarted with another config."""
+        if printer.limits_reader is not None:
+            printer.limits_reader.cancel()
+        printer.live.limits = "loading"
+        printer.limits_tried.clear()
+        printer.limits_reader = asyncio.create_task(self._limits_until_read(printer))
+
+    async def _limits_until_read(self, printer: FleetPrinter) -> None:
+        """Read the limits from Klippy's configfile, retrying with backoff until it works;
+        until then the printer's limits are ``unknown`` and actions that need them wait."""
+        client, pid = printer.client, printer.config.id
+        backoff = Backoff(base=LIMITS_RETRY_FIRST, cap=LIMITS_RETRY_CAP)
+        while client is not None:
+            try:
+                status = await client.objects_query(_DETECTED_FROM_CONFIGFILE)
                 printer.live.detected = detect_capabilities(status["configfile"]["settings"])
-                self._hub.mark(printer.config.id)
-        finally:
-            printer.limits_read.set()
+            except (PrinterError, KeyError, TypeError, ValueError) as exc:
+                delay = backoff.next_delay(0.0)
+                if printer.live.limits != "unknown":
+                    log.warning("%s: cannot read the limits, retrying: %s", pid, _why(exc))
+                printer.live.limits = "unknown"
+                printer.limits_tried.set()
+                self._hub.mark(pid)
+                await asyncio.sleep(delay)
+                continue
+            printer.live.limits = "known"
+            printer.limits_tried.set()
+            self._hub.mark(pid)
+            return
 
     async def _read_klippy_message(self, printer: FleetPrinter) -> None:
         if printer.client is None:
@@ -233,6 +264,10 @@ class Sessions:
         self._background.add(task)
         task.add_done_callback(self._background.discard)
         return task
+
+
+def _why(exc: Exception) -> str:
+    return exc.message if isinstance(exc, PrinterError) else f"unexpected answer ({exc!r})"
 
 
 def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:
