@@ -20,7 +20,7 @@ from kybercore.errors import (
     PrinterAuthFailed,
     PrinterUnreachable,
 )
-from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.client import FLEET_OBJECTS, MoonrakerClient
 
 
 @dataclass
@@ -113,6 +113,25 @@ async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any
         await client.gcode_script(str(params["script"]))
     else:
         raise InvalidInput(f"Unknown action '{action}'.")
+
+
+_JOB: Final = ("print_stats", "virtual_sdcard", "display_status", "idle_timeout")
+_CHANGES: Final[dict[str, tuple[str, ...]]] = {
+    "start": _JOB,
+    "pause": _JOB,
+    "resume": _JOB,
+    "cancel": _JOB,
+    "emergency_stop": ("webhooks",),
+    "home": ("toolhead",),
+    "set_temperature": ("extruder", "heater_bed"),
+    "gcode": tuple(FLEET_OBJECTS),  # a script may change anything
+}  # restarts: Klippy goes away, and the session follows it back
+
+
+def changed_objects(action: str) -> dict[str, list[str] | None]:
+    """The watched printer objects ``action`` changes, with the fields the fleet watches:
+    what to read again once it is done."""
+    return {name: FLEET_OBJECTS[name] for name in _CHANGES.get(action, ())}
 
 
 def temperature_gcode(params: Mapping[str, Any]) -> str:

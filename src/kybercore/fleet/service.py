@@ -29,6 +29,7 @@ from kybercore.errors import (
 )
 from kybercore.fleet.actions import (
     ActionOutcome,
+    changed_objects,
     done_message,
     execute,
     failed_outcome,
@@ -207,6 +208,9 @@ class FleetService:
         raise_if_blocked(verdict, printer_id)
         warnings = require_confirmation(verdict, confirm)
         await execute(self.client(printer_id), action, params)
+        # Know (and show) the state the action left before answering: the next action is
+        # judged against it, and a GET right after must show what the answer promised.
+        await self.sessions.refresh(printer_id, changed_objects(action))
         message = done_message(action, params)
         self._announce(printer_id, action, message)
         return ActionOutcome(printer_id, action, message, reasons=warnings)

@@ -12,7 +12,7 @@ import contextlib
 import logging
 import time
 import weakref
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -33,7 +33,8 @@ from kybercore.moonraker.events import (
     StatusSnapshot,
 )
 from kybercore.moonraker.link import Connect
-from kybercore.moonraker.objects import apply_status
+from kybercore.moonraker.objects import KLIPPY_STATES, apply_status
+from kybercore.moonraker.session import status_objects
 from kybercore.registry.models import PrinterConfig
 
 LAST_SEEN_STEP: Final = 5.0
@@ -188,11 +189,7 @@ class Sessions:
                 }
             )
         elif isinstance(event, KlippyChanged):
-            live.klippy_state = event.state
-            live.klippy_message = event.message
-            self._hub.event(
-                {"type": "klippy", "printer": pid, "state": event.state, "message": event.message}
-            )
+            self._klippy_changed(printer, event.state, event.message)
             if event.state in ("shutdown", "error"):
                 self._spawn(self._read_klippy_message(printer))
         elif isinstance(event, Notification):
@@ -203,6 +200,38 @@ class Sessions:
             if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
                 return
         self._hub.mark(pid)
+
+    def _klippy_changed(self, printer: FleetPrinter, state: str, message: str) -> None:
+        printer.live.klippy_state = state
+        printer.live.klippy_message = message
+        event = {"type": "klippy", "printer": printer.config.id, "state": state}
+        self._hub.event({**event, "message": message})
+
+    async def refresh(self, printer_id: str, objects: Mapping[str, list[str] | None]) -> None:
+        """Read ``objects`` from Klippy now, merge them into the live state and publish the
+        printer's view at once. After an action, the next check and the next read then see
+        the state it left, not the last push (Moonraker pushes every ~250 ms); the read
+        goes over the same socket as the pushes, so no older push can overwrite it.
+        A failed read is logged and left to the next push."""
+        printer = self._printers.get(printer_id)
+        if printer is None or printer.client is None or not objects:
+            return
+        try:
+            status = status_objects(await printer.client.objects_query(objects))
+        except (PrinterError, KeyError, TypeError) as exc:
+            log.info("%s: cannot read the state after an action: %s", printer_id, exc)
+            return
+        if self._printers.get(printer_id) is not printer:
+            return  # removed or replaced meanwhile: its state is someone else's now
+        live = printer.live
+        apply_status(live.status, status)
+        live.updated_at = time.time()
+        webhooks = status.get("webhooks", {})
+        state = webhooks.get("state")
+        if state in KLIPPY_STATES and state != live.klippy_state:
+            self._klippy_changed(printer, state, str(webhooks.get("state_message") or ""))
+        self._follow_file(printer)
+        self._hub.refresh(printer_id)
 
     def _follow_file(self, printer: FleetPrinter) -> None:
         """Fetch the metadata of a newly started file once (ETA, thumbnail)."""
