@@ -16,10 +16,10 @@ from fastapi.responses import Response
 from kybercore.api.deps import OPERATOR, VIEWER, Service
 from kybercore.api.models import (
     ERROR_RESPONSES,
-    ActionResult,
     FileItem,
     FilePath,
-    action_result,
+    UploadResult,
+    upload_result,
 )
 from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput
@@ -72,7 +72,7 @@ async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Respon
 @router.post(
     "",
     status_code=201,
-    response_model=ActionResult,
+    response_model=UploadResult,
     responses=ERROR_RESPONSES,
     dependencies=[OPERATOR],
 )
@@ -83,9 +83,13 @@ async def upload(
     start: Annotated[bool, Form(description="Print it right after the upload.")] = False,
     confirm: Annotated[bool, Form(description="Go ahead despite warnings.")] = False,
 ) -> dict[str, Any]:
-    """Upload a G-code file (checksummed); optionally validate it and start printing."""
+    """Upload a G-code file (checksummed); optionally validate it and start printing.
+
+    201 once the file is stored, whatever became of the start (``started``, ``start``): a
+    start refused then is reported with its reasons, never as a failed upload. An error
+    answer is the upload's own failure (or a start refused before any byte was sent)."""
     filename = safe_path(file.filename or "")
     # The request size was checked before parsing (GuardMiddleware); the file itself
     # stays spooled on disk and is streamed on to Moonraker.
     outcome = await service.upload(printer_id, filename, file.file, start=start, confirm=confirm)
-    return action_result(outcome)
+    return upload_result(outcome)

@@ -143,6 +143,33 @@ def action_result(outcome: ActionOutcome) -> dict[str, Any]:
     }
 
 
+class UploadResult(ActionResult):
+    """An upload (always ``ok`` and 201 once the file is stored) and, when ``start`` was
+    asked, the start that followed: done, or refused with its reasons, which are copied
+    to the upload's own ``reasons``. A refused start never means the file is missing:
+    start it later with ``POST .../actions/start``."""
+
+    uploaded: bool = Field(description="The file is stored on the printer (always true).")
+    started: bool | None = Field(
+        description="Whether the print started; null when start was not asked."
+    )
+    start: ActionResult | None = Field(
+        description="The start's own result (status, code, message, reasons); null when "
+        "start was not asked."
+    )
+
+
+def upload_result(outcome: ActionOutcome) -> dict[str, Any]:
+    """An :class:`UploadResult` body for a done upload ``outcome``."""
+    start = outcome.start
+    return {
+        **action_result(outcome),
+        "uploaded": True,
+        "started": None if start is None else start.ok,
+        "start": None if start is None else action_result(start),
+    }
+
+
 class FleetActionResult(BaseModel):
     """One outcome per printer, in the order asked."""
 

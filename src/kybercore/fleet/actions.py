@@ -32,6 +32,9 @@ class ActionOutcome:
     message: str
     error: KyberCoreError | None = None
     reasons: list[dict[str, str]] = field(default_factory=list)
+    start: ActionOutcome | None = None
+    """After an upload asked to start the file: that start, done or refused (the file is
+    stored either way)."""
 
     @property
     def ok(self) -> bool:

@@ -243,7 +243,11 @@ class FleetService:
         start: bool = False,
         confirm: bool = False,
     ) -> ActionOutcome:
-        """Upload a file; with ``start``, validate it against the printer and print it."""
+        """Upload a file; with ``start``, validate it against the printer and print it.
+
+        Once the file is stored the outcome is a success: a start refused after that is
+        reported in ``outcome.start`` (with its reasons), not raised, so a caller never
+        uploads again a file that is already there."""
         client = self.client(printer_id)
         if start:
             # Refuse before sending the bytes when the printer cannot start anything now.
@@ -257,8 +261,16 @@ class FleetService:
         outcome = ActionOutcome(printer_id, "upload", f"Uploaded {filename}.")
         self._announce(printer_id, "upload", outcome.message)
         if start:
-            started = await self.act(printer_id, "start", {"filename": filename}, confirm=confirm)
-            outcome.message += " " + started.message
+            try:
+                started = await self.act(
+                    printer_id, "start", {"filename": filename}, confirm=confirm
+                )
+            except KyberCoreError as exc:
+                started = failed_outcome(printer_id, "start", exc)
+                outcome.message += f" Not started: {exc.message}"
+            else:
+                outcome.message += " " + started.message
+            outcome.start = started
             outcome.reasons = started.reasons
         return outcome
 

@@ -209,6 +209,7 @@ export const en = {
   "notify.shutdown": "Klipper shut down.",
   "config.reloaded": "printers.json changed: fleet reloaded.",
   "config.refused": "printers.json was not applied",
+  "upload.stored_not_started": "Uploaded, not started: {reason}",
   "upload.aborted": "Upload cancelled.",
   "upload.drop": "Drop a G-code file here",
   "upload.or_choose": "or click to choose one",

@@ -209,6 +209,7 @@ export const es = {
   "notify.shutdown": "Klipper se apagó.",
   "config.reloaded": "printers.json cambió: flota recargada.",
   "config.refused": "printers.json no se aplicó",
+  "upload.stored_not_started": "Subido, sin iniciar: {reason}",
   "upload.aborted": "Subida cancelada.",
   "upload.drop": "Suelte aquí un archivo G-code",
   "upload.or_choose": "o haga clic para elegirlo",
