@@ -34,7 +34,6 @@ from kybercore.moonraker.events import (
 )
 from kybercore.moonraker.link import Connect
 from kybercore.moonraker.objects import KLIPPY_STATES, apply_status
-from kybercore.moonraker.session import status_objects
 from kybercore.registry.models import PrinterConfig
 
 LAST_SEEN_STEP: Final = 5.0
@@ -217,9 +216,9 @@ class Sessions:
         if printer is None or printer.client is None or not objects:
             return
         try:
-            status = status_objects(await printer.client.objects_query(objects))
-        except (PrinterError, KeyError, TypeError) as exc:
-            log.info("%s: cannot read the state after an action: %s", printer_id, exc)
+            status = await printer.client.objects_query(objects)
+        except PrinterError as exc:
+            log.info("%s: cannot read the state after an action: %s", printer_id, exc.message)
             return
         if self._printers.get(printer_id) is not printer:
             return  # removed or replaced meanwhile: its state is someone else's now
