@@ -64,6 +64,7 @@ async def test_a_failed_limits_read_refuses_what_needs_them_and_is_retried(
         PrinterCreate(id="q", name="Q", moonraker_url=standin.url, capabilities=given)
     )
     await wait_for(lambda: fleet.view("p")["limits"] == "unknown", what="limits unknown")
+    await wait_for(lambda: fleet.view("q")["klippy_state"] == "ready", what="q ready")
 
     verdict = await fleet.dry_run("p", "set_temperature", {"extruder": 200})
     assert [(r.code, r.level) for r in verdict.reasons] == [("limits_unknown", "block")]
