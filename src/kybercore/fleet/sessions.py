@@ -258,7 +258,8 @@ class Sessions:
 
     async def _limits_until_read(self, printer: FleetPrinter) -> None:
         """Read the limits from Klippy's configfile, retrying with backoff until it works;
-        until then the printer's limits are ``unknown`` and actions that need them wait."""
+        until then the printer's limits are ``unknown`` and the actions that need them are
+        refused (validation's ``limits_unknown``)."""
         client, pid = printer.client, printer.config.id
         backoff = Backoff(base=LIMITS_RETRY_FIRST, cap=LIMITS_RETRY_CAP)
         while client is not None:
