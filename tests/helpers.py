@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import inspect
+import logging
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -113,3 +115,38 @@ class KyberCoreServer:
                 return
             time.sleep(0.1)  # poll: wait for the printers to be ready, deadline above
         raise AssertionError(f"printers not online in time: {views}")
+
+
+SLOW_CALLBACK = 0.05
+"""asyncio debug mode's threshold the issue names: a loop step longer than this is logged."""
+
+
+class SlowCallbacks(logging.Handler):
+    """Collects asyncio debug mode's "Executing <...> took N seconds" warnings."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        if message.startswith("Executing "):
+            self.lines.append(message)
+
+
+@contextlib.contextmanager
+def loop_watchdog(threshold: float = SLOW_CALLBACK) -> Iterator[SlowCallbacks]:
+    """asyncio debug mode on the running loop with ``slow_callback_duration = threshold``;
+    the slow steps it logs meanwhile are collected in the handler's ``lines``."""
+    loop = asyncio.get_running_loop()
+    handler = SlowCallbacks()
+    debug, previous = loop.get_debug(), loop.slow_callback_duration
+    loop.set_debug(True)
+    loop.slow_callback_duration = threshold
+    logging.getLogger("asyncio").addHandler(handler)
+    try:
+        yield handler
+    finally:
+        logging.getLogger("asyncio").removeHandler(handler)
+        loop.set_debug(debug)
+        loop.slow_callback_duration = previous

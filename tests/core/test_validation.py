@@ -185,7 +185,9 @@ def test_klippy_down_allows_only_restarts_and_emergency_stop(klippy: str, action
     printer = replace(IDLE, klippy_state=klippy, print_state="error")
     params = {"filename": "cube.gcode", "script": "G28", "extruder": 200, "start": True}
     verdict = validate(action, printer, params=params, file_meta=meta())
-    if action in ("firmware_restart", "restart", "emergency_stop"):
+    if action == "restart" and klippy == "shutdown":
+        assert codes(verdict) == ["restart_after_shutdown"]
+    elif action in ("firmware_restart", "restart", "emergency_stop"):
         assert verdict.level == "ok"
     elif action == "upload":  # with start=True it needs Klippy like start does
         assert codes(verdict) == [f"klippy_{klippy}"]
@@ -194,10 +196,35 @@ def test_klippy_down_allows_only_restarts_and_emergency_stop(klippy: str, action
         assert verdict.blocking_category == "state"
 
 
-@pytest.mark.parametrize("script", ["FIRMWARE_RESTART", "restart ; again", "STATUS\nHELP"])
+@pytest.mark.parametrize("script", ["FIRMWARE_RESTART", "firmware_restart ; again", "STATUS\nHELP"])
 def test_klippy_shutdown_still_accepts_the_gcode_klippy_runs_when_down(script: str) -> None:
     printer = replace(IDLE, klippy_state="shutdown")
     assert gcode(script, printer).level == "ok"
+
+
+def test_after_a_shutdown_only_a_firmware_restart_brings_klippy_back() -> None:
+    # A shutdown stops the MCU too; a host restart then fails with "Can not update MCU
+    # config as it is shutdown" and leaves Klippy in error.
+    down = replace(IDLE, klippy_state="shutdown")
+    for verdict in (
+        validate("restart", down),
+        gcode("RESTART", down),
+        gcode("STATUS\nRESTART", down),
+    ):
+        reason = only(verdict)
+        assert (reason.code, reason.level, reason.category) == (
+            "restart_after_shutdown",
+            "block",
+            "state",
+        )
+        assert "firmware restart" in reason.en
+        assert "reinicio del firmware" in reason.es
+    assert validate("firmware_restart", down).level == "ok"
+    assert not allowed_actions(down)["restart"]
+    # A Klippy in error (a configuration mistake) is what a host restart is for.
+    broken = replace(IDLE, klippy_state="error")
+    assert validate("restart", broken).level == "ok"
+    assert gcode("RESTART", broken).level == "ok"
 
 
 def test_klippy_shutdown_blocks_other_gcode() -> None:
@@ -305,7 +332,6 @@ def test_allowed_actions_follow_state() -> None:
     down = allowed_actions(replace(IDLE, klippy_state="shutdown"))
     assert {a for a, ok in down.items() if ok} == {
         "firmware_restart",
-        "restart",
         "emergency_stop",
         "upload",
     }

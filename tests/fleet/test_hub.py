@@ -206,3 +206,23 @@ async def test_a_tick_renders_in_slices_and_a_flush_between_them_loses_nothing(
         await hub.stop()
     assert state["a"] == {"id": "a", "progress": 2, "temp": 5, "layer": 1}
     assert state["b"] == fleet.views["b"]
+
+
+def test_a_refreshed_printer_is_read_at_once_and_sent_with_the_next_frame() -> None:
+    fleet = Fleet()
+    hub = Hub(fleet.render)
+    fleet.views["a"] = {"id": "a", "job": {"state": "standby"}}
+    fleet.views["b"] = {"id": "b", "job": {"state": "standby"}}
+    hub.mark("a")
+    hub.mark("b")
+    client = hub.connect()
+    frames(client)
+    for state in ("printing", "paused"):  # two actions answered within one tick
+        fleet.views["a"]["job"]["state"] = state
+        hub.refresh("a")
+        assert hub.view("a") == fleet.views["a"]
+        assert json.loads(hub.fleet_json())[0]["job"]["state"] == state
+    assert frames(client) == []  # browsers get it with the tick, not a frame per action
+    hub.flush()
+    [delta] = frames(client)
+    assert delta["printers"] == {"a": {"job": {"state": "paused"}}}

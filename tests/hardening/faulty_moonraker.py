@@ -143,6 +143,9 @@ class FaultyMoonraker:
         self.silenced_at: list[float] = []
         """``time.monotonic()`` of every moment a connection went silent."""
         self.methods: list[str] = []
+        self.configfile: dict[str, Any] | None = None
+        """Klippy's ``configfile.settings`` to answer ``printer.objects.query`` with; while
+        None, that query fails as it does while Klippy cannot answer."""
         self._server: Server | asyncio.Server | None = None
         self._stalled: list[asyncio.StreamWriter] = []
         self._open: set[ServerConnection] = set()
@@ -244,6 +247,11 @@ class FaultyMoonraker:
                 result = {"eventtime": time.monotonic(), "status": _status(20.0)}
         elif method == "printer.gcode.script" and self.scenario == "bad_shapes":
             return {"jsonrpc": "2.0", "id": req_id, "error": {"code": "E42", "message": None}}
+        elif method == "printer.objects.query" and self.configfile is not None:
+            result = {
+                "eventtime": time.monotonic(),
+                "status": {"configfile": {"settings": self.configfile}},
+            }
         elif method == "printer.info":
             result = {"state": "ready", "state_message": "Printer is ready"}
         else:

@@ -14,7 +14,13 @@ from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.responses import Response
 
 from kybercore.api.deps import OPERATOR, VIEWER, Service
-from kybercore.api.models import ERROR_RESPONSES, ActionResult, FileItem, action_result
+from kybercore.api.models import (
+    ERROR_RESPONSES,
+    FileItem,
+    FilePath,
+    UploadResult,
+    upload_result,
+)
 from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput
 
@@ -38,20 +44,22 @@ async def files(service: Service, printer_id: str) -> list[dict[str, Any]]:
     responses=ERROR_RESPONSES,
     dependencies=[OPERATOR],
 )
-async def delete_file(service: Service, printer_id: str, path: str) -> Response:
+async def delete_file(service: Service, printer_id: str, path: FilePath) -> Response:
     """Delete a G-code file (refused while it is being printed)."""
     await service.delete_file(printer_id, safe_path(path))
     return Response(status_code=204)
 
 
 @router.get("/metadata", responses=ERROR_RESPONSES, dependencies=[VIEWER])
-async def file_metadata(service: Service, printer_id: str, filename: str) -> dict[str, Any]:
+async def file_metadata(
+    service: Service, printer_id: str, filename: FilePath
+) -> dict[str, Any]:
     """What the slicer wrote in a file's header, as Moonraker parsed it."""
     return await service.file_metadata(printer_id, safe_path(filename))
 
 
 @router.get("/thumbnail", responses=ERROR_RESPONSES, dependencies=[VIEWER])
-async def thumbnail(service: Service, printer_id: str, path: str) -> Response:
+async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Response:
     """A thumbnail image (path as given by a file's metadata, relative to gcodes/)."""
     path = safe_path(path)
     if not path.lower().endswith((".png", ".jpg", ".jpeg")):
@@ -65,7 +73,7 @@ async def thumbnail(service: Service, printer_id: str, path: str) -> Response:
 @router.post(
     "",
     status_code=201,
-    response_model=ActionResult,
+    response_model=UploadResult,
     responses=ERROR_RESPONSES,
     dependencies=[OPERATOR],
 )
@@ -76,9 +84,13 @@ async def upload(
     start: Annotated[bool, Form(description="Print it right after the upload.")] = False,
     confirm: Annotated[bool, Form(description="Go ahead despite warnings.")] = False,
 ) -> dict[str, Any]:
-    """Upload a G-code file (checksummed); optionally validate it and start printing."""
+    """Upload a G-code file (checksummed); optionally validate it and start printing.
+
+    201 once the file is stored, whatever became of the start (``started``, ``start``): a
+    start refused then is reported with its reasons, never as a failed upload. An error
+    answer is the upload's own failure (or a start refused before any byte was sent)."""
     filename = safe_path(file.filename or "")
     # The body was counted as it arrived (GuardMiddleware, the upload limit); the file
     # itself stays spooled on disk and is streamed on to Moonraker.
     outcome = await service.upload(printer_id, filename, file.file, start=start, confirm=confirm)
-    return action_result(outcome)
+    return upload_result(outcome)

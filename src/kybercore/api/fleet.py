@@ -69,7 +69,6 @@ async def check_many(
 ) -> dict[str, Any]:
     """Dry run on several printers: what would happen on each."""
     params = body.params()
-    params.pop("printer_ids", None)  # which printers, not a parameter of the action
 
     async def one(printer_id: str) -> dict[str, Any]:
         try:

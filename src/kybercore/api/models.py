@@ -8,14 +8,16 @@ answers them alike.
 
 from __future__ import annotations
 
-from typing import Any, Final, Literal
+from typing import Annotated, Any, Final, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from fastapi import Query
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 from kybercore.api.errors import error_status
+from kybercore.core.paths import MAX_PATH, SAFE_PATH_PATTERN
 from kybercore.core.validation import Verdict
 from kybercore.fleet.actions import ActionOutcome, reason_dict
-from kybercore.registry.models import Capabilities
+from kybercore.registry.models import Capabilities, Url
 
 ActionName = Literal[
     "start",
@@ -32,6 +34,15 @@ ActionName = Literal[
 MAX_SCRIPT_CHARS = 64 * 1024
 
 
+SafePath = Annotated[
+    str,
+    StringConstraints(max_length=MAX_PATH),
+    Field(json_schema_extra={"pattern": SAFE_PATH_PATTERN}),
+]
+"""A file path relative to gcodes/, documented as :func:`~kybercore.core.paths.safe_path`
+checks it (the service still calls it, for its message)."""
+
+
 class _In(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -39,8 +50,8 @@ class _In(BaseModel):
 class ActionRequest(_In):
     """Parameters of an action; only those the action uses are read."""
 
-    filename: str | None = Field(
-        default=None, max_length=1024, description="start: the G-code file to print."
+    filename: SafePath | None = Field(
+        default=None, description="start: the G-code file to print, relative to gcodes/."
     )
     extruder: float | None = Field(
         default=None, ge=0, le=1000, description="set_temperature: hotend target in °C."
@@ -61,12 +72,28 @@ class ActionRequest(_In):
         return self.model_dump(exclude={"force", "confirm"}, exclude_none=True)
 
 
+FilePath = Annotated[
+    str,
+    Query(
+        max_length=MAX_PATH,
+        json_schema_extra={"pattern": SAFE_PATH_PATTERN},
+        description="A path relative to the printer's gcodes/ folder, without '..'.",
+    ),
+]
+"""A file path in a query string, documented as :func:`~kybercore.core.paths.safe_path`
+checks it (the route still calls it, for its message)."""
+
+
 class FleetActionRequest(ActionRequest):
     """One action on several printers."""
 
     printer_ids: list[str] = Field(
         min_length=1, max_length=10_000, description="Printers to act on, by id."
     )
+
+    def params(self) -> dict[str, Any]:
+        """The action's parameters: which printers is not one of them."""
+        return self.model_dump(exclude={"force", "confirm", "printer_ids"}, exclude_none=True)
 
 
 class GcodeRequest(_In):
@@ -113,6 +140,33 @@ def action_result(outcome: ActionOutcome) -> dict[str, Any]:
         "code": outcome.code,
         "message": outcome.message,
         "reasons": outcome.reasons,
+    }
+
+
+class UploadResult(ActionResult):
+    """An upload (always ``ok`` and 201 once the file is stored) and, when ``start`` was
+    asked, the start that followed: done, or refused with its reasons, which are copied
+    to the upload's own ``reasons``. A refused start never means the file is missing:
+    start it later with ``POST .../actions/start``."""
+
+    uploaded: bool = Field(description="The file is stored on the printer (always true).")
+    started: bool | None = Field(
+        description="Whether the print started; null when start was not asked."
+    )
+    start: ActionResult | None = Field(
+        description="The start's own result (status, code, message, reasons); null when "
+        "start was not asked."
+    )
+
+
+def upload_result(outcome: ActionOutcome) -> dict[str, Any]:
+    """An :class:`UploadResult` body for a done upload ``outcome``."""
+    start = outcome.start
+    return {
+        **action_result(outcome),
+        "uploaded": True,
+        "started": None if start is None else start.ok,
+        "start": None if start is None else action_result(start),
     }
 
 
@@ -218,11 +272,16 @@ class PrinterView(BaseModel):
     location: str
     tags: list[str]
     notes: str
-    moonraker_url: str
+    moonraker_url: Url
     api_key_set: bool
     enabled: bool
     capabilities: Capabilities = Field(
         description="Effective limits: printers.json's values, else Klippy's."
+    )
+    limits: Literal["known", "loading", "unknown"] = Field(
+        description="Whether the limits are known (printers.json gives them all, or Klippy's "
+        "configfile was read), loading (being read after a connect) or unknown (the read "
+        "failed and is retried). Until known, start, set_temperature and G-code are refused."
     )
     connection: str = Field(description="connecting, online, offline, auth_failed or disabled.")
     connection_error: str

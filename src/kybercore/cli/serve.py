@@ -6,6 +6,7 @@ Their heavy imports (FastAPI, uvicorn, the simulator) happen when they run, not 
 
 from __future__ import annotations
 
+import gc
 import ipaddress
 import logging
 import os
@@ -191,12 +192,22 @@ def _run_server(
     # The HTTP client logs every request at INFO; too chatty for a farm of printers.
     logging.getLogger("httpx").setLevel(logging.WARNING)
     uvicorn.run(
-        create_app(registry, access, allowed_hosts=hosts, advisor=advisor),
+        create_app(registry, access, allowed_hosts=hosts, advisor=advisor, on_settled=freeze_heap),
         host=host,
         port=port,
         log_level="warning",
         ws="websockets-sansio",
     )
+
+
+def freeze_heap() -> None:
+    """Move every object alive now out of the garbage collector's reach (``gc.freeze()``):
+    once the fleet is connected, full collections then scan only what churns instead of
+    every session and socket. Measured at 5,000 printers: the collector took 26 % of the
+    CPU before. Frozen objects are still freed by reference count, so nothing long-lived
+    may sit in a reference cycle (see ``Sessions._events_of``)."""
+    gc.collect()
+    gc.freeze()
 
 
 def _is_loopback(host: str) -> bool:

@@ -42,10 +42,15 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
         "Moonraker ha rechazado la clave API de KyberCore. Configure la clave correcta de "
         "esta impresora en printers.json o con `kybercore printers edit`."),
     "klippy_shutdown": ("block", "state",
-        "Klipper is shut down. Only a firmware restart or a restart is possible: find the "
-        "cause in the console, fix it, then restart the firmware.",
-        "Klipper está detenido por un fallo (shutdown). Solo se puede reiniciar el firmware "
-        "o Klipper: busque la causa en la consola, corríjala y reinicie el firmware."),
+        "Klipper is shut down. Only a firmware restart brings it back: find the cause in the "
+        "console, fix it, then restart the firmware.",
+        "Klipper está detenido por un fallo (shutdown). Solo un reinicio del firmware lo "
+        "recupera: busque la causa en la consola, corríjala y reinicie el firmware."),
+    "restart_after_shutdown": ("block", "state",
+        "Klipper is shut down, and its MCU with it: a Klipper restart cannot configure a "
+        "shut-down MCU and would leave Klipper in error. Use firmware restart instead.",
+        "Klipper está detenido y su MCU también: reiniciar Klipper no puede configurar una "
+        "MCU detenida y dejaría Klipper en error. Use el reinicio del firmware."),
     "klippy_error": ("block", "state",
         "Klipper reported an error, often in its configuration. Only a firmware restart or a "
         "restart is possible: fix the cause shown in the console, then restart.",
@@ -90,6 +95,23 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
     "forced_during_print": ("warn", "state",
         "Forced during a print: the print will be lost.",
         "Acción forzada durante una impresión: la impresión se perderá."),
+    "limits_loading": ("block", "state",
+        "KyberCore is still reading this printer's limits (maximum temperatures, build "
+        "volume, nozzle) from Klipper after connecting, and checks this action against them. "
+        "Try again in a few seconds.",
+        "KyberCore todavía está leyendo de Klipper los límites de esta impresora "
+        "(temperaturas máximas, volumen de impresión, boquilla) tras conectarse, y comprueba "
+        "esta acción con ellos. Vuelva a intentarlo en unos segundos."),
+    "limits_unknown": ("block", "state",
+        "KyberCore could not read this printer's limits (maximum temperatures, build volume, "
+        "nozzle) from Klipper, so it cannot check this action against them. It keeps "
+        "retrying by itself; to act now, set the limits in the printer's settings "
+        "(printers.json). Emergency stop always works.",
+        "KyberCore no ha podido leer de Klipper los límites de esta impresora (temperaturas "
+        "máximas, volumen de impresión, boquilla), así que no puede comprobar esta acción con "
+        "ellos. Sigue reintentándolo por sí solo; para actuar ya, indique los límites en la "
+        "configuración de la impresora (printers.json). La parada de emergencia siempre "
+        "funciona."),
     "filename_missing": ("block", "limit",
         "Say which file to use (parameter 'filename').",
         "Indique qué archivo usar (parámetro «filename»)."),

@@ -6,6 +6,12 @@ from kybercore.errors import InvalidInput, shorten
 
 MAX_PATH: int = 1024
 
+# One part of a path: anything but "." and "..", without a separator or control character.
+_PART = r"[^\x00-\x1f/\\.][^\x00-\x1f/\\]*|\.[^\x00-\x1f/\\.][^\x00-\x1f/\\]*|\.\.[^\x00-\x1f/\\]+"
+SAFE_PATH_PATTERN: str = rf"^(?:{_PART})(?:[/\\](?:{_PART}))*$"
+"""What :func:`safe_path` accepts (with at most ``MAX_PATH`` characters), as a regular
+expression for the OpenAPI schema: generated clients and fuzzers see the real rule."""
+
 
 def safe_path(path: str) -> str:
     """``path`` when it is a file path relative to gcodes/; :class:`InvalidInput` otherwise.

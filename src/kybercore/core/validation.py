@@ -18,7 +18,9 @@ Why each file check is a block or a warning:
 * A missing fact is never guessed: without the file's value, the loaded material or the
   max_temp the check is skipped; starting a file with no metadata at all is a warning.
 
-Emergency stop needs only a connection and is never blocked by state. An upload without
+Emergency stop needs only a connection and is never blocked by state. After a shutdown only
+a firmware restart brings Klippy back: the MCU is shut down too, and a host restart would
+leave Klippy in error. An upload without
 ``start`` only stores a file, so its file checks are warnings at most. A G-code script is
 checked for what can be read from it; see :mod:`kybercore.core.gcode`.
 """
@@ -51,6 +53,9 @@ _NOZZLE_TOLERANCE: Final = 0.01
 _GCODE_WHEN_DOWN: Final = frozenset({"RESTART", "FIRMWARE_RESTART", "STATUS", "HELP", "ECHO"})
 _GCODE_RESTARTS: Final = ("SAVE_CONFIG", "FIRMWARE_RESTART", "RESTART")
 _BUSY: Final = ("printing", "paused")
+LIMITED_ACTIONS: Final = frozenset({"start", "upload", "set_temperature", "gcode"})
+"""Actions judged against the printer's limits (max temperatures, volume, nozzle): refused
+while the limits are not known. Never emergency stop, which must not wait for anything."""
 
 
 
@@ -105,6 +110,10 @@ class PrinterFacts:
     material: str | None = None
     max_extruder_temp: float | None = None
     max_bed_temp: float | None = None
+    limits: str = "known"
+    """Whether the limits above are all there is to know: ``known`` (from printers.json or
+    Klippy's configfile), ``loading`` (being read after a connect) or ``unknown`` (the
+    read failed; retried)."""
 
 
 def validate(
@@ -189,14 +198,43 @@ def connection_reasons(printer: PrinterFacts) -> list[Reason]:
 def _state_reasons(
     action: str, printer: PrinterFacts, params: Mapping[str, Any], force: bool
 ) -> list[Reason]:
-    """Rules on Klippy's state and the print state (file and parameters aside)."""
+    """Rules on Klippy's state, the print state and whether the limits are known (file and
+    parameters aside)."""
+    reasons = _klippy_and_print_reasons(action, printer, params, force)
+    if (
+        printer.limits != "known"
+        and _needs_limits(action, params)
+        and not any(r.level == "block" for r in reasons)
+    ):
+        # Without them the max-temp, volume and nozzle checks would silently pass.
+        reasons.append(reason(f"limits_{printer.limits}"))
+    return reasons
+
+
+def _needs_limits(action: str, params: Mapping[str, Any]) -> bool:
+    if action not in LIMITED_ACTIONS or (action == "upload" and not params.get("start")):
+        return False
+    script = params.get("script")
+    # A script of commands that move and heat nothing (STATUS, HELP...) needs no limits.
+    names = command_names(script) if action == "gcode" and isinstance(script, str) else []
+    return not names or not all(n in _GCODE_WHEN_DOWN for n in names)
+
+
+def _klippy_and_print_reasons(
+    action: str, printer: PrinterFacts, params: Mapping[str, Any], force: bool
+) -> list[Reason]:
     if action == "emergency_stop" or (action == "upload" and not params.get("start")):
         return []  # e-stop must always go through; storing a file does not need Klippy
     klippy, state = printer.klippy_state, printer.print_state
     if klippy in ("shutdown", "error"):
         script = params.get("script")
+        names = command_names(script) if action == "gcode" and isinstance(script, str) else []
+        if klippy == "shutdown" and (action == "restart" or "RESTART" in names):
+            # A shutdown stops the MCU too: a host restart cannot configure it again ("Can
+            # not update MCU config as it is shutdown") and leaves Klippy in error.
+            return [reason("restart_after_shutdown")]
         if action in ("firmware_restart", "restart") or (
-            action == "gcode" and isinstance(script, str) and _only_when_down(script)
+            names and all(n in _GCODE_WHEN_DOWN for n in names)
         ):
             return []
         return [reason(f"klippy_{klippy}")]
@@ -343,11 +381,6 @@ def _gcode_reasons(printer: PrinterFacts, script: Any, force: bool) -> list[Reas
             reasons.append(reason("gcode_move_outside_volume", line=line, axis=move.axis,
                                    low=float(low[i]), high=float(high[i])))  # fmt: skip
     return reasons
-
-
-def _only_when_down(script: str) -> bool:
-    names = command_names(script)
-    return bool(names) and all(n in _GCODE_WHEN_DOWN for n in names)
 
 
 # --- helpers -------------------------------------------------------------------------------

@@ -21,6 +21,10 @@ from kybercore.registry.models import PrinterConfig
 
 View = dict[str, Any]
 
+LIMITS: tuple[str, ...] = ("build_volume", "nozzle_diameter", "max_extruder_temp", "max_bed_temp")
+"""The capabilities validation judges actions by; with all of them in printers.json, Klippy's
+configfile is not needed."""
+
 
 @dataclass
 class LivePrinter:
@@ -35,6 +39,9 @@ class LivePrinter:
     """Metadata of the file in ``print_stats.filename`` (for ETA and thumbnail)."""
     detected: dict[str, Any] = field(default_factory=dict)
     """Capabilities read from Klippy's configfile: build_volume, nozzle_diameter, max temps."""
+    limits: str = "loading"
+    """Whether ``detected`` is read: ``loading`` (since the last (re)subscription),
+    ``known``, or ``unknown`` (the read failed; it is retried)."""
     updated_at: float = 0.0
 
 
@@ -52,6 +59,8 @@ class _ConfigDerived:
     public: View
     configured: dict[str, Any]
     """``config.capabilities`` as JSON data; None where printers.json leaves a value out."""
+    all_limits: bool
+    """printers.json gives every one of :data:`LIMITS`."""
     detected: dict[str, Any] | None = None
     capabilities: dict[str, Any] = field(default_factory=dict)
     """``configured`` completed from ``detected`` (the object it was computed from)."""
@@ -67,9 +76,11 @@ def _config_derived(config: PrinterConfig) -> _ConfigDerived:
     key = id(config)
     derived = _derived.get(key)
     if derived is None:
+        configured = config.capabilities.model_dump(mode="json")
         derived = _ConfigDerived(
             config.public().model_dump(mode="json"),
-            config.capabilities.model_dump(mode="json"),
+            configured,
+            all(configured.get(name) is not None for name in LIMITS),
         )
         _derived[key] = derived
         weakref.finalize(config, _derived.pop, key, None)
@@ -82,6 +93,7 @@ def _actions(config: PrinterConfig, live: LivePrinter) -> dict[str, bool]:
     derived = _config_derived(config)
     key = (
         capabilities(config, live),
+        limits_state(config, live),
         live.connection,
         live.klippy_state,
         live.status.get("print_stats", {}).get("state"),
@@ -106,6 +118,11 @@ def capabilities(config: PrinterConfig, live: LivePrinter) -> dict[str, Any]:
     return derived.capabilities
 
 
+def limits_state(config: PrinterConfig, live: LivePrinter) -> str:
+    """``known`` when printers.json gives every limit, else how Klippy's read stands."""
+    return "known" if _config_derived(config).all_limits else live.limits
+
+
 def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
     """The inputs of :mod:`kybercore.core.validation` for this printer."""
     caps = capabilities(config, live)
@@ -125,6 +142,7 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
         material=caps.get("material"),
         max_extruder_temp=caps.get("max_extruder_temp"),
         max_bed_temp=caps.get("max_bed_temp"),
+        limits=limits_state(config, live),
     )
 
 
@@ -182,6 +200,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
     # modified once built (the hub diffs them, the API serializes them).
     view: View = dict(_config_derived(config).public)
     view["capabilities"] = capabilities(config, live)
+    view["limits"] = limits_state(config, live)
     view.update(
         connection=live.connection,
         connection_error=live.connection_error,

@@ -20,7 +20,7 @@ from kybercore.errors import (
     PrinterAuthFailed,
     PrinterUnreachable,
 )
-from kybercore.moonraker.client import MoonrakerClient
+from kybercore.moonraker.client import FLEET_OBJECTS, MoonrakerClient
 
 
 @dataclass
@@ -32,6 +32,9 @@ class ActionOutcome:
     message: str
     error: KyberCoreError | None = None
     reasons: list[dict[str, str]] = field(default_factory=list)
+    start: ActionOutcome | None = None
+    """After an upload asked to start the file: that start, done or refused (the file is
+    stored either way)."""
 
     @property
     def ok(self) -> bool:
@@ -113,6 +116,25 @@ async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any
         await client.gcode_script(str(params["script"]))
     else:
         raise InvalidInput(f"Unknown action '{action}'.")
+
+
+_JOB: Final = ("print_stats", "virtual_sdcard", "display_status", "idle_timeout")
+_CHANGES: Final[dict[str, tuple[str, ...]]] = {
+    "start": _JOB,
+    "pause": _JOB,
+    "resume": _JOB,
+    "cancel": _JOB,
+    "emergency_stop": ("webhooks",),
+    "home": ("toolhead",),
+    "set_temperature": ("extruder", "heater_bed"),
+    "gcode": tuple(FLEET_OBJECTS),  # a script may change anything
+}  # restarts: Klippy goes away, and the session follows it back
+
+
+def changed_objects(action: str) -> dict[str, list[str] | None]:
+    """The watched printer objects ``action`` changes, with the fields the fleet watches:
+    what to read again once it is done."""
+    return {name: FLEET_OBJECTS[name] for name in _CHANGES.get(action, ())}
 
 
 def temperature_gcode(params: Mapping[str, Any]) -> str:

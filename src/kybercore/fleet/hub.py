@@ -132,6 +132,13 @@ class Hub:
             self._fleet = _encode(list(self._views.values()))
         return self._fleet
 
+    def refresh(self, printer_id: str) -> None:
+        """Render one printer now, so that reads (:meth:`view`, :meth:`fleet_json`) show
+        its new state at once; browsers get the change with the next tick's frame, so a
+        bulk action still sends one frame per tick."""
+        self._dirty.pop(printer_id, None)
+        self._render([printer_id])
+
     def flush(self) -> None:
         """Render dirty printers now and queue one delta frame (plus pending events)."""
         self._render(self._take_dirty())

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
-from collections.abc import Awaitable
+import weakref
+from collections.abc import Awaitable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -19,9 +21,11 @@ import httpx
 from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse
 from kybercore.errors import PrinterError, UnknownPrinter
 from kybercore.fleet.hub import Hub
+from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import (
     ConnectionChanged,
+    EventCallback,
     KlippyChanged,
     Notification,
     SessionEvent,
@@ -29,13 +33,19 @@ from kybercore.moonraker.events import (
     StatusSnapshot,
 )
 from kybercore.moonraker.link import Connect
-from kybercore.moonraker.objects import apply_status
+from kybercore.moonraker.objects import KLIPPY_STATES, apply_status
 from kybercore.registry.models import PrinterConfig
 
 LAST_SEEN_STEP: Final = 5.0
 
-# Settings read once from Klippy's configfile when printers.json does not give them.
+# Settings read from Klippy's configfile after every (re)subscription.
 _DETECTED_FROM_CONFIGFILE = {"configfile": ["settings"]}
+# A failed read is retried with backoff and jitter: after a KyberCore restart a thousand
+# printers connect at once, and the reads that failed must not all come back together.
+LIMITS_RETRY_FIRST: Final = 1.0
+LIMITS_RETRY_CAP: Final = 60.0
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -46,18 +56,20 @@ class FleetPrinter:
     client: MoonrakerClient | None
     """None while the printer is disabled."""
     live: LivePrinter = field(default_factory=LivePrinter)
-    limits_read: asyncio.Event = field(default_factory=asyncio.Event)
-    """Set once Klippy's configfile was read (or could not be) since the last snapshot."""
+    limits_tried: asyncio.Event = field(default_factory=asyncio.Event)
+    """Set once Klippy's configfile was read, or its read failed, since the last snapshot."""
+    limits_reader: asyncio.Task[None] | None = None
 
     async def wait_for_limits(self, timeout: float) -> None:
-        """Wait, at most ``timeout`` s, until the limits read after a (re)connect is done.
+        """Wait, at most ``timeout`` s, until the first limits read after a (re)connect
+        succeeded or failed (``live.limits`` then says which).
 
         A printer is online ~300 ms before its configfile arrives; an action checked in
-        that window would go without its max-temp, volume and nozzle checks.
+        that window is refused with ``limits_loading`` unless the read comes in time.
         """
-        if self.live.connection == "online" and not self.limits_read.is_set():
+        if self.live.connection == "online" and not self.limits_tried.is_set():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.limits_read.wait(), timeout)
+                await asyncio.wait_for(self.limits_tried.wait(), timeout)
 
 
 class Sessions:
@@ -86,13 +98,17 @@ class Sessions:
         printer = self._printers.get(printer_id)
         return None if printer is None else fuse(printer.config, printer.live)
 
-    def apply(self, printers: list[PrinterConfig]) -> None:
+    def apply(self, printers: list[PrinterConfig]) -> asyncio.Future[Any]:
         """Make the running sessions match ``printers`` (start, stop or restart them) and
-        publish the result at once, so the fleet list shows it when a request returns."""
+        publish the result at once, so the fleet list shows it when a request returns.
+
+        Sessions no longer wanted close in the background; await the result to wait for
+        them (it never raises)."""
         wanted = {p.id: p for p in printers}
+        closing = []
         for printer_id in list(self._printers):
             if printer_id not in wanted:
-                self._spawn(self._close(self._printers.pop(printer_id)))
+                closing.append(self._spawn(self._close(self._printers.pop(printer_id))))
                 self._hub.mark(printer_id)
         for printer_id, config in wanted.items():
             current = self._printers.get(printer_id)
@@ -100,10 +116,11 @@ class Sessions:
                 current.config = config
             else:
                 if current is not None:
-                    self._spawn(self._close(current))
+                    closing.append(self._spawn(self._close(current)))
                 self._printers[printer_id] = self._open(config)
             self._hub.mark(printer_id)
         self._hub.flush()
+        return asyncio.gather(*closing, return_exceptions=True)
 
     async def close(self) -> None:
         """Close every session and stop background work."""
@@ -121,13 +138,30 @@ class Sessions:
             self._http,
             name=config.id,
             api_key=config.api_key.get_secret_value() if config.api_key else None,
-            on_event=lambda event: self._on_event(printer, event),
+            on_event=self._events_of(printer),
             connect=self._connect,
         )
         printer.client.start()
         return printer
 
+    def _events_of(self, printer: FleetPrinter) -> EventCallback:
+        """The session's event callback for ``printer``. It holds the printer weakly: a
+        strong reference would close the cycle printer -> client -> session -> callback ->
+        printer, which ``gc.freeze()`` (``kybercore serve``) makes immortal, so every
+        removed or re-sessioned printer would leak. The session of a replaced printer
+        reports to that printer, never to its successor under the same id."""
+        ref = weakref.ref(printer)
+
+        def on_event(event: SessionEvent) -> None:
+            target = ref()
+            if target is not None:
+                self._on_event(target, event)
+
+        return on_event
+
     async def _close(self, printer: FleetPrinter) -> None:
+        if printer.limits_reader is not None:
+            printer.limits_reader.cancel()
         if printer.client is not None:
             await printer.client.close()
 
@@ -141,8 +175,7 @@ class Sessions:
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
             self._follow_file(printer)
-            printer.limits_read.clear()
-            self._spawn(self._detect_capabilities(printer))
+            self._read_limits(printer)
         elif isinstance(event, ConnectionChanged):
             live.connection = event.connection
             live.connection_error = event.detail
@@ -155,11 +188,7 @@ class Sessions:
                 }
             )
         elif isinstance(event, KlippyChanged):
-            live.klippy_state = event.state
-            live.klippy_message = event.message
-            self._hub.event(
-                {"type": "klippy", "printer": pid, "state": event.state, "message": event.message}
-            )
+            self._klippy_changed(printer, event.state, event.message)
             if event.state in ("shutdown", "error"):
                 self._spawn(self._read_klippy_message(printer))
         elif isinstance(event, Notification):
@@ -170,6 +199,38 @@ class Sessions:
             if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
                 return
         self._hub.mark(pid)
+
+    def _klippy_changed(self, printer: FleetPrinter, state: str, message: str) -> None:
+        printer.live.klippy_state = state
+        printer.live.klippy_message = message
+        event = {"type": "klippy", "printer": printer.config.id, "state": state}
+        self._hub.event({**event, "message": message})
+
+    async def refresh(self, printer_id: str, objects: Mapping[str, list[str] | None]) -> None:
+        """Read ``objects`` from Klippy now, merge them into the live state and publish the
+        printer's view at once. After an action, the next check and the next read then see
+        the state it left, not the last push (Moonraker pushes every ~250 ms); the read
+        goes over the same socket as the pushes, so no older push can overwrite it.
+        A failed read is logged and left to the next push."""
+        printer = self._printers.get(printer_id)
+        if printer is None or printer.client is None or not objects:
+            return
+        try:
+            status = await printer.client.objects_query(objects)
+        except PrinterError as exc:
+            log.info("%s: cannot read the state after an action: %s", printer_id, exc.message)
+            return
+        if self._printers.get(printer_id) is not printer:
+            return  # removed or replaced meanwhile: its state is someone else's now
+        live = printer.live
+        apply_status(live.status, status)
+        live.updated_at = time.time()
+        webhooks = status.get("webhooks", {})
+        state = webhooks.get("state")
+        if state in KLIPPY_STATES and state != live.klippy_state:
+            self._klippy_changed(printer, state, str(webhooks.get("state_message") or ""))
+        self._follow_file(printer)
+        self._hub.refresh(printer_id)
 
     def _follow_file(self, printer: FleetPrinter) -> None:
         """Fetch the metadata of a newly started file once (ETA, thumbnail)."""
@@ -187,16 +248,37 @@ class Sessions:
             printer.live.file_meta = {**meta, "filename": filename}
             self._hub.mark(printer.config.id)
 
-    async def _detect_capabilities(self, printer: FleetPrinter) -> None:
-        if printer.client is None:
-            return
-        try:
-            with contextlib.suppress(PrinterError, KeyError, TypeError, ValueError):
-                status = await printer.client.objects_query(_DETECTED_FROM_CONFIGFILE)
+    def _read_limits(self, printer: FleetPrinter) -> None:
+        """(Re)start reading the limits: Klippy may have restarted with another config."""
+        if printer.limits_reader is not None:
+            printer.limits_reader.cancel()
+        printer.live.limits = "loading"
+        printer.limits_tried.clear()
+        printer.limits_reader = asyncio.create_task(self._limits_until_read(printer))
+
+    async def _limits_until_read(self, printer: FleetPrinter) -> None:
+        """Read the limits from Klippy's configfile, retrying with backoff until it works;
+        until then the printer's limits are ``unknown`` and the actions that need them are
+        refused (validation's ``limits_unknown``)."""
+        client, pid = printer.client, printer.config.id
+        backoff = Backoff(base=LIMITS_RETRY_FIRST, cap=LIMITS_RETRY_CAP)
+        while client is not None:
+            try:
+                status = await client.objects_query(_DETECTED_FROM_CONFIGFILE)
                 printer.live.detected = detect_capabilities(status["configfile"]["settings"])
-                self._hub.mark(printer.config.id)
-        finally:
-            printer.limits_read.set()
+            except (PrinterError, KeyError, TypeError, ValueError) as exc:
+                delay = backoff.next_delay(0.0)
+                if printer.live.limits != "unknown":
+                    log.warning("%s: cannot read the limits, retrying: %s", pid, _why(exc))
+                printer.live.limits = "unknown"
+                printer.limits_tried.set()
+                self._hub.mark(pid)
+                await asyncio.sleep(delay)
+                continue
+            printer.live.limits = "known"
+            printer.limits_tried.set()
+            self._hub.mark(pid)
+            return
 
     async def _read_klippy_message(self, printer: FleetPrinter) -> None:
         if printer.client is None:
@@ -206,14 +288,15 @@ class Sessions:
             printer.live.klippy_message = str(info.get("state_message", ""))
             self._hub.mark(printer.config.id)
 
-    def _render(self, printer_id: str) -> View | None:
-        printer = self._printers.get(printer_id)
-        return None if printer is None else fuse(printer.config, printer.live)
-
-    def _spawn(self, work: Awaitable[Any]) -> None:
+    def _spawn(self, work: Awaitable[Any]) -> asyncio.Future[Any]:
         task = asyncio.ensure_future(work)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
+        return task
+
+
+def _why(exc: Exception) -> str:
+    return exc.message if isinstance(exc, PrinterError) else f"unexpected answer ({exc!r})"
 
 
 def _needs_new_session(old: PrinterConfig, new: PrinterConfig) -> bool:

@@ -28,6 +28,16 @@ from pydantic import (
 
 SLUG_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 MAX_URL_LENGTH = 2048
+URL_PATTERN = (
+    r"^[Hh][Tt][Tt][Pp][Ss]?://"
+    r"(?:\[[0-9A-Fa-f:.]+\]|[^\s\x00-\x1f/?#@:\[\]]+)(?::[0-9]*)?"
+    r"(?:/[^\s\x00-\x1f?#]*)?$"
+)
+"""What :func:`_check_url` accepts, for the OpenAPI schema (a port's range and an IPv6
+address's validity aside): http(s), a host or [IPv6], an optional port and path; no
+credentials, query, fragment, spaces or control characters."""
+API_KEY_PATTERN = r"^[!-~]*$"
+"""Printable ASCII without spaces (it travels in a header); empty means no key."""
 
 
 def _check_url(url: str) -> str:
@@ -78,14 +88,24 @@ def _api_key_input(value: object) -> object:
 
 
 Slug = Annotated[str, StringConstraints(pattern=SLUG_PATTERN)]
-Url = Annotated[str, StringConstraints(max_length=MAX_URL_LENGTH), AfterValidator(_check_url)]
+Url = Annotated[
+    str,
+    StringConstraints(max_length=MAX_URL_LENGTH),
+    AfterValidator(_check_url),
+    Field(json_schema_extra={"pattern": URL_PATTERN, "format": "uri"}),
+]
 Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100)]
 ShortText = Annotated[str, StringConstraints(strip_whitespace=True, max_length=100)]
 Notes = Annotated[str, StringConstraints(max_length=2000)]
 Tag = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=32)]
 Tags = Annotated[list[Tag], Field(max_length=32), AfterValidator(_dedupe)]
 ApiKey = Annotated[
-    Annotated[SecretStr, StringConstraints(max_length=256)] | None,
+    Annotated[
+        SecretStr,
+        StringConstraints(max_length=256),
+        Field(json_schema_extra={"pattern": API_KEY_PATTERN}),
+    ]
+    | None,
     BeforeValidator(_api_key_input),
 ]
 

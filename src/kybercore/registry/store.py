@@ -10,6 +10,8 @@ The format lives in :mod:`kybercore.registry.format`, the models in
   leaves either the old or the new file, whole.
 - Every mutation is read-modify-write under a ``threading.Lock`` and a cross-process
   ``filelock`` on ``printers.json.lock``, so the server and the CLI writing at once lose nothing.
+- Reading the last good fleet (:attr:`PrinterRegistry.printers`) takes no lock: the event
+  loop reads it while a writer may wait up to ``LOCK_TIMEOUT`` for another process.
 
 All methods are blocking; async code calls them through ``asyncio.to_thread``, except
 :meth:`PrinterRegistry.watch`, which is a coroutine.
@@ -77,8 +79,9 @@ def read_printers(path: Path) -> list[PrinterConfig]:
 def write_printers(path: Path, printers: list[PrinterConfig]) -> None:
     """Replace ``path`` atomically with ``printers``, keeping the old file as ``.bak``.
 
-    Does not lock: callers hold the registry's locks. On any failure the old file is intact
-    and the temp file is removed.
+    Does not lock: callers hold the registry's locks. On a failure before the replace the
+    old file is intact and the temp file is removed; once the new file is in place, a
+    failed fsync of the folder is logged as a warning, not raised (the file did change).
     """
     data = dump_printers(printers)
     # mkstemp creates the file 0600: it holds API keys.
@@ -95,7 +98,17 @@ def write_printers(path: Path, printers: list[PrinterConfig]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    try:
+        _fsync_dir(path.parent)
+    except OSError as exc:
+        # The new file is in place: the write happened, and saying "not changed" would be
+        # false. Only whether it survives a power cut in the next seconds is in doubt.
+        log.warning(
+            "%s: written, but its folder could not be synced (%s); a power cut in the next "
+            "seconds could bring back the previous version.",
+            path,
+            exc,
+        )
 
 
 def _backup(path: Path) -> None:
@@ -139,7 +152,8 @@ class PrinterRegistry:
         self.path = Path(path) if path is not None else default_printers_path()
         self.last_error: str | None = None
         """Why the last reload failed; None once the file is good again."""
-        self._printers: list[PrinterConfig] = []
+        self._printers: tuple[PrinterConfig, ...] = ()
+        """Replaced whole, never changed in place: readers need no lock."""
         self._seen: Signature = None
         self._lock = threading.Lock()
         self._file_lock = filelock.FileLock(
@@ -148,9 +162,8 @@ class PrinterRegistry:
 
     @property
     def printers(self) -> list[PrinterConfig]:
-        """The last good configuration (a copy)."""
-        with self._lock:
-            return list(self._printers)
+        """The last good configuration (a copy). Never waits: safe on the event loop."""
+        return list(self._printers)
 
     def get(self, printer_id: str) -> PrinterConfig:
         """The printer ``printer_id`` from the last good configuration, or UnknownPrinter."""
@@ -178,9 +191,9 @@ class PrinterRegistry:
             except ConfigError as exc:
                 self.last_error = exc.message
                 raise
-            self._printers = printers
+            self._printers = tuple(printers)
             self.last_error = None
-            return list(printers)
+            return printers
 
     def add(self, new: PrinterCreate) -> PrinterConfig:
         """Add a printer and return it as stored.
@@ -246,7 +259,7 @@ class PrinterRegistry:
                 result = change(printers)
                 _remove_stale_temp_files(self.path)
                 write_printers(self.path, printers)
-                self._printers = printers
+                self._printers = tuple(printers)
                 self.last_error = None
                 # If someone else edited the file since we last looked, leave _seen stale so
                 # watch() still reports the merged result; otherwise this write is ours alone.

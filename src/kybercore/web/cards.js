@@ -130,6 +130,7 @@ export class Tile extends Card {
       pill: h("span", { class: "pill" }),
       conn: h("span", { class: "badge conn" }),
       klippy: h("span", { class: "badge klippy" }),
+      limits: h("span", { class: "badge limits", hidden: true }),
       tags: h("span", { class: "tags" }),
       thumbImg: h("img", { alt: "", decoding: "async", loading: "lazy" }),
       file: h("p", { class: "file" }),
@@ -155,7 +156,7 @@ export class Tile extends Card {
       "article",
       { class: "tile", dataset: { id: p.id }, "aria-labelledby": nameId },
       h("header", { class: "tile-head" }, r.select, h("div", { class: "tile-title" }, r.name, r.meta), r.pill),
-      h("div", { class: "badges" }, r.conn, r.klippy, r.tags),
+      h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.tags),
       h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.layer))),
       r.note,
       h(
@@ -190,6 +191,16 @@ export class Tile extends Card {
     if (this.changed("klippy", `${p.klippy_state}|${t("klippy." + p.klippy_state)}`)) {
       r.klippy.dataset.klippy = p.klippy_state;
       setText(r.klippy, t(`klippy.${p.klippy_state}`));
+    }
+    // Limits not known: start, temperatures and G-code are refused until they are.
+    const limits = p.connection === "online" && p.limits && p.limits !== "known" ? p.limits : "";
+    if (this.changed("limits", `${limits}|${t("limits.unknown")}`)) {
+      setHidden(r.limits, !limits);
+      if (limits) {
+        r.limits.dataset.limits = limits;
+        setText(r.limits, t(`limits.${limits}`));
+        r.limits.title = t(`limits.${limits}_hint`);
+      }
     }
     if (this.changed("tags", (p.tags || []).join("\n"))) {
       r.tags.replaceChildren(...(p.tags || []).map((tag) => h("span", { class: "tag", text: tag })));

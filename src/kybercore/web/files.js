@@ -8,7 +8,7 @@ import * as fmt from "./format.js";
 import { messageOf, t } from "./i18n.js";
 import { can } from "./session.js";
 import { printers } from "./store.js";
-import { dropZone, uploadTo } from "./uploads.js";
+import { dropZone, uploadFailure, uploadTo } from "./uploads.js";
 
 const PAGE = 100;
 const META_PARALLEL = 3;
@@ -67,7 +67,7 @@ export function showFiles(panel, id) {
       status.textContent = outcome.message;
       toast({ kind: "ok", title: printers.get(id)?.name || id, message: outcome.message });
     } else if (outcome.needsConfirm) {
-      // Uploaded already (the 409 is about starting it): show it in the list, then ask.
+      // Uploaded already (only its start waits for a confirmation): list it, then ask.
       bar.style.width = "100%";
       progress.setAttribute("aria-valuenow", "100");
       status.textContent = t("upload.needs_confirm");
@@ -81,8 +81,9 @@ export function showFiles(panel, id) {
         }
       } else status.textContent = t("upload.not_started");
     } else {
-      status.textContent = messageOf(outcome.error);
-      toast({ kind: "error", title: printers.get(id)?.name || id, message: messageOf(outcome.error) });
+      if (outcome.uploaded) bar.style.width = "100%";
+      status.textContent = uploadFailure(outcome);
+      toast({ kind: "error", title: printers.get(id)?.name || id, message: status.textContent });
     }
     load();
   }

@@ -12,16 +12,28 @@ const PARALLEL = 4;
 
 /**
  * Upload one file to one printer (and print it when start). Resolves {ok, message, result}
- * or {ok: false, error, needsConfirm} — a file that needs confirmation to start is uploaded
- * already; start it with api.act(..., {confirm: true}).
+ * or {ok: false, uploaded, error, needsConfirm}. With uploaded the file is stored and only
+ * its start was refused (the backend answers 201 with started: false and the start's
+ * reasons); when that start needs a confirmation, start it with api.act(..., {confirm: true}).
  */
 export async function uploadTo(id, file, { start = false, onProgress } = {}) {
+  let result;
   try {
-    const result = await upload(id, file, { start, onProgress }).promise;
-    return { ok: true, result, message: start ? t("done.upload_start", { filename: file.name }) : t("done.upload", { filename: file.name }) };
+    result = await upload(id, file, { start, onProgress }).promise;
   } catch (error) {
-    return { ok: false, error, needsConfirm: error instanceof ApiError && error.code === "confirmation_required" };
+    return { ok: false, uploaded: false, error, needsConfirm: false };
   }
+  if (result.started === false) {
+    const error = new ApiError(result.start.status, result.start);
+    return { ok: false, uploaded: true, result, error, needsConfirm: error.code === "confirmation_required" };
+  }
+  return { ok: true, result, message: start ? t("done.upload_start", { filename: file.name }) : t("done.upload", { filename: file.name }) };
+}
+
+/** What to say about a failed upload: the reason, after "stored, not started" when it was. */
+export function uploadFailure(outcome) {
+  const reason = messageOf(outcome.error);
+  return outcome.uploaded ? t("upload.stored_not_started", { reason }) : reason;
 }
 
 /** A drop zone with a file input inside (click, keyboard, or drag and drop). */
@@ -137,7 +149,10 @@ async function uploadMany(ids, file, { start, delay, rows }) {
       needConfirm.push({ id, error: outcome.error });
       row.progress(1); // uploaded; only the start waits for a confirmation
       row.done("warn", t("upload.needs_confirm"));
-    } else row.done("fail", messageOf(outcome.error));
+    } else if (outcome.uploaded) {
+      row.progress(1); // stored; only the start was refused
+      row.done("warn", uploadFailure(outcome));
+    } else row.done("fail", uploadFailure(outcome));
   };
   if (delay > 0) {
     for (const [index, id] of ids.entries()) {
@@ -162,7 +177,8 @@ async function uploadMany(ids, file, { start, delay, rows }) {
       rows.get(id).done("fail", messageOf(err));
     }
   }
-  const failures = ids.filter((id) => rows.get(id).row.classList.contains("fail")).length;
+  // A file stored but not started (warn) is not done either: the user asked for a print.
+  const failures = ids.filter((id) => !rows.get(id).row.classList.contains("ok")).length;
   toast({
     kind: failures ? "error" : "ok",
     title: t("upload.title_many", { n: ids.length }),
