@@ -27,11 +27,14 @@ def test_the_printer_ids_are_not_a_parameter_of_the_action() -> None:
 
 @pytest.fixture
 async def advised_api(
-    fleet_stacks: list[PrinterStack], tmp_path: Path
+    own_printer: PrinterStack, tmp_path: Path
 ) -> AsyncIterator[tuple[httpx.AsyncClient, FakeChatCompletionsServer]]:
-    """The app in this process with one real printer and the advisor stand-in (not a model)."""
+    """The app in this process with one real printer and the advisor stand-in (not a model).
+
+    A printer of its own: the test heats it, and the shared fleet printers must stay at room
+    temperature for the tests that read them."""
     path = tmp_path / "printers.json"
-    write_printers(path, [PrinterConfig(id="b", name="B", moonraker_url=fleet_stacks[1].url)])
+    write_printers(path, [PrinterConfig(id="b", name="B", moonraker_url=own_printer.url)])
     async with FakeChatCompletionsServer(mode="warnings") as advisor:
         config = AdvisorConfig(advisor.url, SecretStr("advisor-key"), budget_seconds=5.0)
         app = create_app(PrinterRegistry(path), advisor=config)

@@ -125,7 +125,9 @@ TRAVERSALS = [
 @pytest.mark.parametrize("name", TRAVERSALS)
 def test_a_file_name_outside_gcodes_is_refused(api: httpx.Client, name: str) -> None:
     base = f"/api/printers/{PRINTER}/files"
-    refused(api.get(f"{base}/metadata", params={"filename": name}), 422, "not a valid file name")
+    message = refused(api.get(f"{base}/metadata", params={"filename": name}), 422)
+    # Refused by the path rule, or (too long) by the schema that now documents the limit.
+    assert "not a valid file name" in message or "query.filename" in message, message
     thumb = name if name.endswith((".png", ".jpg")) else name + ".png"
     if name and len(thumb) <= 1024:
         refused(api.get(f"{base}/thumbnail", params={"path": thumb}), 422, "valid file name")

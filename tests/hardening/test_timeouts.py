@@ -114,7 +114,10 @@ def test_a_frozen_moonraker_never_hangs_a_request(dead_fleet: DeadFleet) -> None
     server = dead_fleet.server
     with httpx.Client(base_url=server.url, timeout=30) as api:
         deadline = time.monotonic() + 30
-        while api.get("/api/printers/frozen").json()["klippy_state"] != "ready":
+        # Online as a printer KyberCore acts on: ready, and its limits read.
+        while (view := api.get("/api/printers/frozen").json())["klippy_state"] != "ready" or (
+            view["limits"] != "known"
+        ):
             assert time.monotonic() < deadline, "the real printer never came online"
             time.sleep(0.1)  # poll: wait for the printer, deadline above
         os.kill(dead_fleet.frozen.pids["moonraker"], signal.SIGSTOP)
