@@ -57,6 +57,11 @@ def test_file_paths_are_described_as_validated(schema: dict[str, Any]) -> None:
         assert params[name]["maxLength"] == MAX_PATH, (path, name)
 
 
+def test_a_thumbnail_is_documented_as_the_image_it_is(schema: dict[str, Any]) -> None:
+    ok = schema["paths"]["/api/printers/{printer_id}/files/thumbnail"]["get"]["responses"]["200"]
+    assert set(ok["content"]) == {"image/png", "image/jpeg"}
+
+
 def _accepted(path: str) -> bool:
     try:
         safe_path(path)

@@ -114,7 +114,8 @@ def test_a_frozen_moonraker_never_hangs_a_request(dead_fleet: DeadFleet) -> None
     server = dead_fleet.server
     with httpx.Client(base_url=server.url, timeout=30) as api:
         deadline = time.monotonic() + 30
-        # Online as a printer KyberCore acts on: ready, and its limits read.
+        # Ready, and its limits read: a limits read cut by the freeze is refused as
+        # limits_unknown (409), at once too, but this test is about the requests themselves.
         while (view := api.get("/api/printers/frozen").json())["klippy_state"] != "ready" or (
             view["limits"] != "known"
         ):

@@ -8,7 +8,7 @@ is relative to the printer's ``gcodes/`` root and must stay there.
 from __future__ import annotations
 
 import mimetypes
-from typing import Annotated, Any
+from typing import Annotated, Any, Final
 
 from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.responses import Response
@@ -58,7 +58,18 @@ async def file_metadata(
     return await service.file_metadata(printer_id, safe_path(filename))
 
 
-@router.get("/thumbnail", responses=ERROR_RESPONSES, dependencies=[VIEWER])
+_IMAGE: Final = {"schema": {"type": "string", "format": "binary"}}
+
+
+@router.get(
+    "/thumbnail",
+    response_class=Response,
+    responses={
+        200: {"description": "The image.", "content": {"image/png": _IMAGE, "image/jpeg": _IMAGE}},
+        **ERROR_RESPONSES,
+    },
+    dependencies=[VIEWER],
+)
 async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Response:
     """A thumbnail image (path as given by a file's metadata, relative to gcodes/)."""
     path = safe_path(path)

@@ -75,13 +75,12 @@ class ActionRequest(_In):
 FilePath = Annotated[
     str,
     Query(
-        max_length=MAX_PATH,
-        json_schema_extra={"pattern": SAFE_PATH_PATTERN},
+        json_schema_extra={"pattern": SAFE_PATH_PATTERN, "maxLength": MAX_PATH},
         description="A path relative to the printer's gcodes/ folder, without '..'.",
     ),
 ]
 """A file path in a query string, documented as :func:`~kybercore.core.paths.safe_path`
-checks it (the route still calls it, for its message)."""
+checks it; the route calls it, so a bad path is explained in its words."""
 
 
 class FleetActionRequest(ActionRequest):
