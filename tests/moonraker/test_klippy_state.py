@@ -135,6 +135,7 @@ async def test_e_stop_raced_against_the_resubscription_never_leaves_it_shown_rea
 
     session.call = call  # type: ignore[method-assign]
     lags = []
+    unraced = 0
     try:
         await driver.emergency_stop()
         await wait_for(lambda: watch.state == "shutdown", what="the first shutdown")
@@ -142,10 +143,19 @@ async def test_e_stop_raced_against_the_resubscription_never_leaves_it_shown_rea
             latency.append((n % 20 - 10) / 1000)
             await driver.firmware_restart()
             await wait_for(
-                lambda: bool(stops) and stops[-1].done(),
+                lambda: (bool(stops) and stops[-1].done())
+                or (bool(latency) and watch.state == "ready"),
                 timeout=READY_WITHIN,
                 what=f"race {n}: the e-stop sent",
             )
+            if latency:
+                # Back at ready without a server.info answer saying so (on a busy machine
+                # Klippy can be ready before the session asks): no race this round, but
+                # the e-stop and the convergence below are checked all the same.
+                latency.pop()
+                unraced += 1
+                stops.append(loop.create_task(driver.emergency_stop()))
+                await wait_for(lambda: stops[-1].done(), what=f"race {n}: the e-stop sent")
             stops.pop().result()
             await wait_for(lambda: _is(driver, "shutdown"), what=f"race {n}: Moonraker shut down")
             seen_at = time.monotonic()
@@ -158,10 +168,12 @@ async def test_e_stop_raced_against_the_resubscription_never_leaves_it_shown_rea
     finally:
         session.call = real_call  # type: ignore[method-assign]
     crossed = sum(1 for _, snapshot in seen if snapshot == "shutdown")
+    assert RACES - unraced >= RACES // 5, f"only {RACES - unraced} of {RACES} rounds raced"
     print(
         f"\n{RACES} e-stops raced against the re-subscription ({crossed} landed between "
-        f"server.info and the snapshot): shown shutdown {statistics.median(lags) * 1000:.0f} ms "
-        f"(median), {max(lags) * 1000:.0f} ms (max) after Moonraker's server.info said so"
+        f"server.info and the snapshot, {unraced} not raced): shown shutdown "
+        f"{statistics.median(lags) * 1000:.0f} ms (median), {max(lags) * 1000:.0f} ms (max) "
+        "after Moonraker's server.info said so"
     )
     await driver.firmware_restart()
     await wait_for(lambda: watch.state == "ready", timeout=READY_WITHIN, what="ready again")
