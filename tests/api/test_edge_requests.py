@@ -4,7 +4,6 @@ route's limit however it is sent, header bytes that are not UTF-8."""
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import websockets
 
 from kybercore.api.auth import COOKIE
 from tests.api.conftest import PROXY_NAME, StartEdge
-from tests.hardening.faults import rss_bytes
+from tests.hardening.faults import RssSampler
 from tests.helpers import KyberCoreServer
 
 pytestmark = pytest.mark.integration
@@ -90,33 +89,11 @@ def _chunks(total: int, sent: list[int], chunk: int = 64 * 1024) -> Iterator[byt
         yield block
 
 
-class PeakRss:
-    """The highest RSS of a process while a ``with`` block runs (sampled every 20 ms)."""
-
-    def __init__(self, pid: int) -> None:
-        self.pid = pid
-        self.before = self.peak = rss_bytes(pid)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-
-    def _sample(self) -> None:
-        while not self._stop.wait(0.02):
-            self.peak = max(self.peak, rss_bytes(self.pid))
-
-    def __enter__(self) -> PeakRss:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-
-
 def test_an_anonymous_chunked_body_is_refused_before_it_is_read(edge_server: StartEdge) -> None:
     server, _ = edge_server(tokens=True)
     total = 100 * 10**6
     sent = [0]
-    with PeakRss(server.pid) as memory, httpx.Client(timeout=30) as client:
+    with RssSampler(server.pid) as memory, httpx.Client(timeout=30) as client:
         try:
             answer: httpx.Response | None = client.post(
                 f"{server.url}/api/printers",

@@ -7,7 +7,6 @@ printer, so the shared fleet is left as it was.
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,7 +17,7 @@ import pytest
 
 from kybercore.api.app import MAX_UPLOAD_BYTES
 from kybercore.api.models import MAX_SCRIPT_CHARS
-from tests.hardening.faults import rss_bytes
+from tests.hardening.faults import RssSampler
 from tests.helpers import KyberCoreServer
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
@@ -162,32 +161,6 @@ def test_a_script_over_the_limit_is_refused_before_reaching_the_printer(
 
 
 # -- upload size -------------------------------------------------------------------------
-
-
-class RssSampler:
-    """The highest resident memory of a process while a ``with`` block runs (20 ms samples)."""
-
-    def __init__(self, pid: int) -> None:
-        self.pid = pid
-        self.before = self.peak = rss_bytes(pid)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-
-    def _sample(self) -> None:
-        while not self._stop.wait(0.02):
-            self.peak = max(self.peak, rss_bytes(self.pid))
-
-    @property
-    def growth(self) -> int:
-        return self.peak - self.before
-
-    def __enter__(self) -> RssSampler:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
 
 
 def _upload_too_big(api: httpx.Client, tmp_path: Path, name: str) -> httpx.Response:
