@@ -1,0 +1,1 @@
+"""KyberCore's database: the engine and its migrations."""
