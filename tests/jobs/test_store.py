@@ -298,9 +298,8 @@ async def test_every_change_is_in_the_history_and_told_after_commit(database: As
     told: list[tuple[str, dict[str, Any]]] = []
     store = JobStore(database, on_change=lambda kind, payload: told.append((kind, payload)))
     job = await store.create_job(new_job(), "ana")
-    assert [(kind, p["event"], p["job"].id) for kind, p in told] == [
-        ("job", "job_created", job.id)
-    ]
+    created = [(kind, p["event"], p["job"].id) for kind, p in told]
+    assert created == [("job", "job_created", job.id)]
     told.clear()
     attempt = await reserved(store, job.id, "p1")
     assert sorted(kind for kind, _ in told) == ["attempt", "gate", "job"]
