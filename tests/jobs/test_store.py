@@ -244,7 +244,7 @@ async def test_more_attempts_allowed_unblock_a_job_and_fewer_block_it(store: Job
     attempt = await reserved(store, job.id, "p1")
     await store.finish(attempt.id, "failed", reason="clog")
     blocked = await store.update_job(job.id, max_attempts=1, user="ana")
-    assert (blocked.state, blocked.reason) == ("blocked", "1 failed attempts (at most 1)")
+    assert (blocked.state, blocked.reason) == ("blocked", "failed attempts: 1 of 1 allowed")
     assert (await store.update_job(job.id, max_attempts=2, user="ana")).state == "queued"
 
 
