@@ -1,8 +1,8 @@
 """The queue's pure rules: eligibility, ranking, the heating budget, one round, its order.
 
 Every rule is shown on both sides (a printer that takes the job, one that does not), and a
-hypothesis property test checks a whole round over random fleets and queues. Why-lines and
-never-printable verdicts are in test_why.py-style scenarios at the end of this module.
+hypothesis property test checks a whole round over random fleets and queues. The builders
+here (``printer``, ``job``) are shared with test_why.py.
 """
 
 from __future__ import annotations
