@@ -21,6 +21,7 @@ import heapq
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
+from itertools import pairwise
 
 from kybercore.core.validation import PrinterFacts
 from kybercore.jobs.eligibility import (
@@ -61,6 +62,17 @@ def job_order(job: Job) -> tuple[int, float, int]:
     return (-job.priority, job.position, job.id)
 
 
+def in_order(jobs: Sequence[Job]) -> bool:
+    """Whether ``jobs`` are in queue order already (checked without building keys)."""
+    for a, b in pairwise(jobs):
+        if a.priority != b.priority:
+            if a.priority < b.priority:
+                return False
+        elif a.position > b.position or (a.position == b.position and a.id > b.id):
+            return False
+    return True
+
+
 def plan(
     jobs: Sequence[Job],
     printers: Sequence[PrinterSnapshot],
@@ -81,7 +93,9 @@ def plan(
     that job there; used for jobs with failures. ``memo``: keep one between rounds to
     reuse verdicts.
     """
-    queued = sorted((j for j in jobs if j.state == "queued" and j.left > 0), key=job_order)
+    queued = [j for j in jobs if j.state == "queued" and j.left > 0]
+    if not in_order(queued):  # the store lists them in order; sorting anyway costs more
+        queued.sort(key=job_order)
     if paused:
         held = [line(QUEUE, "queue_paused")]
         return Plan([], {j.id: held for j in queued})
