@@ -8,11 +8,11 @@ time in the usage window, then the least recently used, then the id. For a job t
 before, printers that ran it fewer times go first. A power group may have at most K
 printers heating at once, starts in progress included.
 
-Speed: a round over 5,000 printers and 10,000 jobs stays within milliseconds because
-printers that are interchangeable for every job (same facts and tags) are judged once as a
-kind, validation verdicts are kept in a :class:`Memo` between rounds, a kind is only
-validated when its best printer would be picked, and the round stops once no printer can
-take anything.
+Speed (``bench/dispatch.py``: 5,000 printers, 10,000 jobs): free printers that validation
+judges alike (same facts) form a kind, validated once per file; the kinds sit in a heap by
+their least-worn printer, shared by the jobs with the same requirements; a kind is validated
+only when its best printer would win; verdicts are kept in a :class:`Memo` between rounds;
+and the round stops once no printer can take anything.
 """
 
 from __future__ import annotations
@@ -97,8 +97,8 @@ def plan(
     if not in_order(queued):  # the store lists them in order; sorting anyway costs more
         queued.sort(key=job_order)
     if paused:
-        held = [line(QUEUE, "queue_paused")]
-        return Plan([], {j.id: held for j in queued})
+        held = line(QUEUE, "queue_paused")
+        return Plan([], {j.id: [held] for j in queued})
     waiting: dict[int, list[WhyLine]] = {}
     ready: list[Job] = []
     for job in queued:
