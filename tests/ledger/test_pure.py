@@ -102,7 +102,9 @@ async def read_all(history: History, floor: int, limit: int) -> list[int]:
     return [job.number async for page in backfill(history.page, floor, limit) for job in page]
 
 
-@pytest.mark.parametrize(("count", "limit"), [(5000, 100), (5000, 50), (5001, 100), (99, 100), (0, 50)])
+@pytest.mark.parametrize(
+    ("count", "limit"), [(5000, 100), (5000, 50), (5001, 100), (99, 100), (0, 50)]
+)
 async def test_a_first_backfill_reads_everything_in_ceil_count_over_limit_requests(
     count: int, limit: int
 ) -> None:
@@ -117,7 +119,8 @@ async def test_a_later_backfill_stops_at_the_floor_included() -> None:
     assert history.requests == 1
     history.requests = 0
     read = await read_all(history, 4850, 100)
-    assert read[-1] == 4801 and 4850 in read
+    assert read[-1] == 4801
+    assert 4850 in read
     assert history.requests == 2
 
 
@@ -147,5 +150,7 @@ async def test_deleted_jobs_cost_at_most_one_more_request() -> None:
         ("online", "ready", "error", "available", "idle"),
     ],
 )
-def test_printer_state(connection: str, klippy: str, printing: str, gate: str | None, state: str) -> None:
+def test_printer_state(
+    connection: str, klippy: str, printing: str, gate: str | None, state: str
+) -> None:
     assert printer_state(connection, klippy, printing, gate) == state
