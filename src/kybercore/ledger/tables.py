@@ -14,7 +14,7 @@ from typing import Final
 from sqlalchemy import (
     JSON,
     Column,
-    Float,
+    Double,
     Index,
     Integer,
     MetaData,
@@ -39,19 +39,19 @@ history_jobs: Final = Table(
     Column("filename", Text, nullable=False),
     Column("status", String(32), nullable=False),
     Column("moonraker_user", String(100), nullable=False, server_default=""),
-    Column("start_time", Float, nullable=False),
-    Column("end_time", Float, nullable=True),
-    Column("print_duration", Float, nullable=False, server_default="0"),
-    Column("total_duration", Float, nullable=False, server_default="0"),
+    Column("start_time", Double, nullable=False),
+    Column("end_time", Double, nullable=True),
+    Column("print_duration", Double, nullable=False, server_default="0"),
+    Column("total_duration", Double, nullable=False, server_default="0"),
     # Millimetres of filament as Moonraker measured them; grams when the file's metadata
     # says what its filament weighs.
-    Column("filament_used", Float, nullable=False, server_default="0"),
-    Column("filament_g", Float, nullable=True),
+    Column("filament_used", Double, nullable=False, server_default="0"),
+    Column("filament_g", Double, nullable=True),
     Column("material", String(64), nullable=True),
     Column("file_meta", JSON, nullable=True),
     # The queue attempt that printed it (its upload name is the file name), if any.
     Column("attempt_id", Integer, nullable=True),
-    Column("updated_at", Float, nullable=False),
+    Column("updated_at", Double, nullable=False),
     UniqueConstraint("printer", "instance", "moonraker_job_id", name="uq_history_jobs_job"),
     Index("ix_history_jobs_start", "start_time"),
     Index("ix_history_jobs_printer_start", "printer", "start_time"),
@@ -64,8 +64,8 @@ printer_states: Final = Table(
     Column("id", Integer, primary_key=True, autoincrement=True),
     Column("printer", String(64), nullable=False),
     Column("state", String(32), nullable=False),
-    Column("started_at", Float, nullable=False),
-    Column("ended_at", Float, nullable=True),  # NULL while open: the current state
+    Column("started_at", Double, nullable=False),
+    Column("ended_at", Double, nullable=True),  # NULL while open: the current state
     Index("ix_printer_states_printer_open", "printer", "ended_at"),
     Index("ix_printer_states_started", "started_at"),
 )
