@@ -139,19 +139,19 @@ async def cancel_job(
 ) -> Job:
     """Cancel a job. With copies printing, 409 ``confirmation_required`` lists them until
     asked again with ``?confirm=true``, which cancels those prints too."""
-    return await queue.cancel_job(job_id, user.name, confirm=confirm)
+    return await queue.cancel_job(job_id, user=user.name, confirm=confirm)
 
 
 @router.post("/api/jobs/{job_id}/move", response_model=JobOut, responses=ERROR_RESPONSES)
 async def move_job(queue: Queue, user: Operator, job_id: JobId, move: MoveRequest) -> Job:
     """Reorder: put the job just before another one, or last."""
-    return await queue.move_job(job_id, move.before, user.name)
+    return await queue.move_job(job_id, move.before, user=user.name)
 
 
 @router.post("/api/jobs/{job_id}/requeue", response_model=JobOut, responses=ERROR_RESPONSES)
 async def requeue_job(queue: Queue, user: Operator, job_id: JobId) -> Job:
     """Put a blocked job back in the queue, its failure count reset."""
-    return await queue.requeue_job(job_id, user.name)
+    return await queue.requeue_job(job_id, user=user.name)
 
 
 @router.get(
@@ -187,9 +187,9 @@ async def queue_state(queue: Queue) -> QueueState:
 async def change_queue(queue: Queue, user: Operator, change: QueueChange) -> QueueState:
     """Pause (no new copy starts; prints under way go on) or resume dispatching."""
     if change.paused:
-        await queue.pause(user.name)
+        await queue.pause(user=user.name)
     else:
-        await queue.resume(user.name)
+        await queue.resume(user=user.name)
     return await _state(queue)
 
 
@@ -206,7 +206,7 @@ async def clear(
     """Clear the plate of a printer awaiting it: ``good`` counts the copy done, ``bad``
     sends it back to the queue. The printer is available again."""
     service.config(printer_id)  # an unknown printer is a 404
-    return await queue.clear(printer_id, body.verdict, body.cause, user.name)
+    return await queue.clear(printer_id, body.verdict, cause=body.cause, user=user.name)
 
 
 @router.post("/api/printers/{printer_id}/hold", response_model=GateOut, responses=ERROR_RESPONSES)
@@ -215,7 +215,7 @@ async def hold(
 ) -> Any:
     """Keep the queue off a printer (a print under way goes on) until it is released."""
     service.config(printer_id)
-    return await queue.hold(printer_id, body.reason, user.name)
+    return await queue.hold(printer_id, body.reason, user=user.name)
 
 
 @router.post(
@@ -224,7 +224,7 @@ async def hold(
 async def release(queue: Queue, service: Service, user: Operator, printer_id: str) -> Any:
     """Give a held printer back to the queue."""
     service.config(printer_id)
-    return await queue.release(printer_id, user.name)
+    return await queue.release(printer_id, user=user.name)
 
 
 # -- helpers ------------------------------------------------------------------------------
