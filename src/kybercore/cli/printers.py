@@ -49,6 +49,13 @@ M = TypeVar("M", PrinterCreate, PrinterUpdate)
 
 ModelOpt = Annotated[str | None, typer.Option("--model", help="Printer model, e.g. 'Voron 2.4'.")]
 LocationOpt = Annotated[str | None, typer.Option("--location", help="Where the printer is.")]
+PowerGroupOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--power-group",
+        help="The circuit it shares with others (the queue's heating budget); default: location.",
+    ),
+]
 NotesOpt = Annotated[str | None, typer.Option("--notes", help="Free text for operators.")]
 TagOpt = Annotated[
     list[str] | None,
@@ -116,6 +123,7 @@ def add_printer(
     ] = None,
     model: ModelOpt = None,
     location: LocationOpt = None,
+    power_group: PowerGroupOpt = None,
     notes: NotesOpt = None,
     tag: TagOpt = None,
     api_key: ApiKeyOpt = None,
@@ -135,6 +143,7 @@ def add_printer(
             moonraker_url=url,
             model=model,
             location=location,
+            power_group=power_group,
             notes=notes,
             tags=tag,
             api_key=api_key,
@@ -153,6 +162,7 @@ def edit_printer(
     url: Annotated[str | None, typer.Option("--url", help="New Moonraker URL.")] = None,
     model: ModelOpt = None,
     location: LocationOpt = None,
+    power_group: PowerGroupOpt = None,
     notes: NotesOpt = None,
     tag: TagOpt = None,
     api_key: ApiKeyOpt = None,
@@ -174,6 +184,7 @@ def edit_printer(
         "moonraker_url": url,
         "model": model,
         "location": location,
+        "power_group": power_group,
         "notes": notes,
         "tags": tag,
         "api_key": api_key,
