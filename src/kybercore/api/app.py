@@ -25,7 +25,7 @@ given), then starts the fleet and the queue; it stops them in the reverse order.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Callable, Coroutine, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any, Final
@@ -63,7 +63,7 @@ WEB_DIR: Final = Path(__file__).parent.parent / "web"
 MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 
-OnStarted = Callable[[FleetService, QueueService], Awaitable[None]]
+OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
 """Work to run once the fleet and the queue are up (``kybercore demo`` queues its jobs)."""
 
 
