@@ -12,6 +12,8 @@ resource:
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.jobs`: ``/api/jobs``, ``/api/queue``, ``/api/gates`` and the plate
   gates (``/api/printers/{id}/clear|hold|release``): the job queue;
+- :mod:`kybercore.api.history`: ``/api/history``, ``/api/history.csv``, ``/api/stats``:
+  the ledger's job history and statistics; :mod:`kybercore.api.metrics`: ``/metrics``;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
 - :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
@@ -38,7 +40,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
 from kybercore.aio import cancel_and_wait
-from kybercore.api import files, fleet, jobs, printers, session, ws
+from kybercore.api import files, fleet, history, jobs, metrics, printers, session, ws
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -56,6 +58,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
+from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.store import PrinterRegistry
 
@@ -96,11 +99,17 @@ def create_app(
                 await queue.start()
                 app.state.service = service
                 app.state.queue = queue
+                # -- the ledger (issue 17): history, state timeline, /metrics --------
+                ledger = LedgerService(service, engine)
+                await ledger.start()
+                app.state.ledger = ledger
+                # ---------------------------------------------------------------------
                 started = asyncio.create_task(on_started(service, queue)) if on_started else None
                 try:
                     yield
                 finally:
                     await cancel_and_wait(started)
+                    await ledger.stop()
                     await queue.stop()
                     await service.stop()
         finally:
@@ -128,6 +137,8 @@ def create_app(
         upload_limit=MAX_UPLOAD_BYTES,
     )
     for module in (fleet, printers, files, jobs, ws, session):
+        app.include_router(module.router)
+    for module in (history, metrics):  # the ledger (issue 17)
         app.include_router(module.router)
     add_docs(app)
 
