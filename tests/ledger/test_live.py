@@ -18,9 +18,11 @@ from sqlalchemy import func, select
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import default_database_url, open_database
+from kybercore.jobs.store import JobStore
 from kybercore.ledger import records, stats
 from kybercore.ledger.service import LedgerService
-from kybercore.ledger.tables import history_jobs
+from kybercore.ledger.tables import history_jobs, printer_states
+from kybercore.registry.models import PrinterConfig
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import travel_gcode, wait_for
 from tests.ledger.live_ledger import configs, finished, moonraker, newest_job, running_ledger
@@ -214,3 +216,42 @@ async def test_five_thousand_past_jobs_are_read_once_in_ceil_count_over_limit_re
             "the catch-up after Moonraker's restart",
         )
         assert (await records.page(engine, records.HistoryFilter(), 10, 0))[0] == past
+        assert ledger.reconnects == {own_printer.options.name: 1}
+
+
+async def test_plate_gates_and_disabled_printers_reach_the_timeline_on_change_only(
+    fleet_stacks: list[PrinterStack], tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    stack = fleet_stacks[2]
+    pid = stack.options.name
+    off = PrinterConfig(id="ledger-off", name="Off", moonraker_url=stack.url, enabled=False)
+    queue = JobStore(engine)
+    async with running_ledger([*configs([stack]), off], tmp_path, http, engine) as ledger:
+        await wait_for(
+            lambda: ledger.timeline.current == {pid: "idle", "ledger-off": "disabled"},
+            CAUGHT_UP_WITHIN,
+            "the printers' first states",
+        )
+        await queue.set_maintenance(pid, "new nozzle", "ana")
+        await wait_for(
+            lambda: ledger.timeline.current.get(pid) == "maintenance",
+            CAUGHT_UP_WITHIN,
+            "maintenance from the queue's gate",
+        )
+        await queue.release(pid, "ana")
+        await wait_for(
+            lambda: ledger.timeline.current.get(pid) == "idle", CAUGHT_UP_WITHIN, "idle again"
+        )
+        await ledger.flush()
+        # Temperatures keep arriving four times a second: nothing to write.
+        assert await ledger.timeline.flush() == 0
+    s = printer_states.c
+    async with engine.connect() as conn:
+        intervals = (
+            await conn.execute(select(s.printer, s.state, s.ended_at).order_by(s.id))
+        ).all()
+    mine = [state for printer, state, _ in intervals if printer == pid]
+    # Offline first when the ledger looked before the session was up.
+    assert mine in (["idle", "maintenance", "idle"], ["offline", "idle", "maintenance", "idle"])
+    assert [state for printer, state, _ in intervals if printer == "ledger-off"] == ["disabled"]
+    assert all(ended is not None for *_, ended in intervals)  # closed when KyberCore stopped
