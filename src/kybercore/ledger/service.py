@@ -157,7 +157,8 @@ class LedgerService:
     def caught_up(self, printer_id: str) -> bool:
         """Whether the printer's history was read since it last connected."""
         feed = self._feeds.get(printer_id)
-        return feed is not None and feed.catch_up is not None and feed.catch_up.done()
+        task = None if feed is None else feed.catch_up
+        return task is not None and task.done() and not task.cancelled()
 
     # -- what the sessions tell ----------------------------------------------------------
 
