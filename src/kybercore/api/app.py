@@ -9,6 +9,8 @@ resource:
   runs, G-code;
 - :mod:`kybercore.api.files`: ``/api/printers/{id}/files``, list, metadata, thumbnails,
   upload, delete;
+- :mod:`kybercore.api.temperatures`: ``/api/printers/{id}/temperatures``, the heaters'
+  last half hour;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
@@ -31,7 +33,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
-from kybercore.api import files, fleet, printers, session, ws
+from kybercore.api import files, fleet, printers, session, temperatures, ws
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -94,7 +96,7 @@ def create_app(
         hosts=allowed_hosts or HostAllowlist(),
         upload_limit=MAX_UPLOAD_BYTES,
     )
-    for module in (fleet, printers, files, ws, session):
+    for module in (fleet, printers, files, temperatures, ws, session):
         app.include_router(module.router)
     add_docs(app)
 
