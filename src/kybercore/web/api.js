@@ -60,7 +60,21 @@ export const api = {
     request("POST", `/api/fleet/actions/${enc(action)}`, { ...params, printer_ids: ids }),
   checkMany: (action, ids, params = {}) =>
     request("POST", `/api/fleet/actions/${enc(action)}/check`, { ...params, printer_ids: ids }),
+  // The ledger: history, statistics, temperatures (query: an object of filters).
+  temperatures: (id, minutes) => request("GET", `${printer(id)}/temperatures?minutes=${minutes}`),
+  history: (query) => request("GET", `/api/history?${queryString(query)}`),
+  historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,
+  stats: (query) => request("GET", `/api/stats?${queryString(query)}`),
 };
+
+/** "a=1&b=x" from an object; empty values left out. */
+export function queryString(query) {
+  const params = new URLSearchParams();
+  for (const [key, value] of Object.entries(query || {})) {
+    if (value !== undefined && value !== null && value !== "") params.set(key, String(value));
+  }
+  return params.toString();
+}
 
 /**
  * Upload a G-code file with XMLHttpRequest (fetch cannot report upload progress).

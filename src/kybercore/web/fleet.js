@@ -171,6 +171,7 @@ async function main() {
     tabs: [$("tab-files"), $("tab-console")],
     filesPanel: $("panel-files"),
     consolePanel: $("panel-console"),
+    temps: $("drawer-temps"),
   });
   $("add-printer").addEventListener("click", () => printerDialog());
   translateStatic(document); // the bulk bar and menus built above carry data-i18n too
