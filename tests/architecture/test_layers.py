@@ -35,9 +35,17 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.db",
         "kybercore.fleet", "kybercore.moonraker", "kybercore.registry", "kybercore.sim.runtime",
     ),
+    # The ledger: job history, state timeline, statistics, metrics. It reads the queue's
+    # tables (jobs.tables) and vocabulary, never the queue's workings.
+    "ledger": (
+        "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.db",
+        "kybercore.fleet", "kybercore.moonraker", "kybercore.registry",
+        "kybercore.jobs.models", "kybercore.jobs.tables",
+    ),
     "api": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
         "kybercore.moonraker", "kybercore.registry", "kybercore.jobs", "kybercore.db",
+        "kybercore.ledger",
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
     "cli": ("kybercore",),
@@ -58,6 +66,7 @@ FORBIDDEN: Final[dict[str, tuple[str, ...]]] = {
     "cli": (),
     "db": ("fastapi", "starlette", "typer", "uvicorn", "httpx", "picows"),
     "jobs": ("fastapi", "starlette", "typer", "uvicorn", "http"),
+    "ledger": ("fastapi", "starlette", "typer", "uvicorn", "http"),
 }  # fmt: skip
 
 # The style guide says ~100-400 lines; this is the hard stop (the MCU simulator's one class,

@@ -1,0 +1,321 @@
+"""The ledger at work: it listens to every printer's session and keeps the history, the
+state timeline and the figures ``/metrics`` shows, without ever polling a printer for them.
+
+- On every (re)connect of a printer, its history is caught up: Moonraker's instance id,
+  then a backfill newest first down to the last job known (:func:`history.backfill`).
+  Live ``notify_history_changed`` events are written in batches meanwhile; one that arrives
+  before the instance id is known waits for it.
+- Every ``tick`` seconds the printers' states go to the timeline; only changes are written.
+- Every ``queue_poll`` seconds the queue's gates and depth are read, in one query each.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from prometheus_client import CollectorRegistry
+from sqlalchemy import func, select
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.ext.asyncio import AsyncEngine
+
+from kybercore.aio import cancel_and_wait
+from kybercore.fleet.service import FleetService
+from kybercore.fleet.sessions import FleetPrinter
+from kybercore.ledger.history import (
+    PAGE,
+    HistoryJob,
+    HistoryStore,
+    backfill,
+    jobs_of_notification,
+    read_instance,
+)
+from kybercore.ledger.metrics import FleetCollector, QueueFigures
+from kybercore.ledger.tables import gates, jobs
+from kybercore.ledger.timeline import Timeline, printer_state
+from kybercore.moonraker.backoff import Backoff
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    KlippyChanged,
+    Notification,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
+
+log = logging.getLogger(__name__)
+
+BACKFILLS_AT_ONCE: Final = 8
+"""A thousand printers reconnecting after a restart catch up eight at a time."""
+LAG_EVERY: Final = 0.5
+
+Row = tuple[str, str, HistoryJob]
+
+
+@dataclass
+class _Feed:
+    """One printer's ingest: which Moonraker database it has, and its catch-up."""
+
+    instance: str | None = None
+    waiting: list[HistoryJob] = field(default_factory=list)
+    """Live jobs heard before the instance id was read."""
+    catch_up: asyncio.Task[None] | None = None
+    was_online: bool = False
+
+
+class LedgerService:
+    """History ingest, state timeline and metrics figures for one fleet."""
+
+    def __init__(
+        self,
+        fleet: FleetService,
+        engine: AsyncEngine,
+        *,
+        page: int = PAGE,
+        tick: float = 1.0,
+        queue_poll: float = 2.0,
+    ) -> None:
+        self.fleet = fleet
+        self.engine = engine
+        self.history = HistoryStore(engine)
+        self.timeline = Timeline(engine)
+        self.job_counts: dict[tuple[str, str], int] = {}
+        """Jobs per (printer, Moonraker status), as written: /metrics reads it."""
+        self.reconnects: Counter[str] = Counter()
+        self.queue = QueueFigures()
+        self.gates: dict[str, str] = {}
+        self.loop_lag = 0.0
+        self.backfill_requests = 0
+        """``/server/history/list`` requests made (a test counts them)."""
+        self.metrics = CollectorRegistry(auto_describe=False)
+        self.metrics.register(FleetCollector(self))
+        self._page = page
+        self._tick = tick
+        self._queue_poll = queue_poll
+        self._feeds: dict[str, _Feed] = {}
+        self._live: list[Row] = []
+        self._wake = asyncio.Event()
+        self._writing = asyncio.Lock()
+        self._backfills = asyncio.Semaphore(BACKFILLS_AT_ONCE)
+        self._tasks: list[asyncio.Task[None]] = []
+        self._unlisten: Any = None
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Close what a previous run left open, load the counts, start listening."""
+        await self.timeline.recover()
+        self.job_counts = await self.history.counts()
+        self._unlisten = self.fleet.listen(self._on_event)
+        for work, name in (
+            (self._writer, "ledger-writer"),
+            (self._sweeper, "ledger-timeline"),
+            (self._queue_reader, "ledger-queue"),
+            (self._lag_meter, "ledger-loop-lag"),
+        ):
+            self._tasks.append(asyncio.create_task(work(), name=name))
+        # Printers online before we listened: their (re)connect was not heard.
+        for printer in self.fleet.sessions.all():
+            if printer.live.connection == "online":
+                self._connected(printer.config.id)
+
+    async def stop(self) -> None:
+        """Stop listening; write what was heard; end the open state intervals."""
+        if self._unlisten is not None:
+            self._unlisten()
+            self._unlisten = None
+        for feed in self._feeds.values():
+            await cancel_and_wait(feed.catch_up)
+        for task in self._tasks:
+            await cancel_and_wait(task)
+        self._tasks.clear()
+        with contextlib.suppress(SQLAlchemyError):
+            await self.flush()
+            await self.timeline.close()
+
+    async def flush(self) -> None:
+        """Write the live jobs and state changes heard so far, now."""
+        await self._write_live()
+        self._sweep()
+        await self.timeline.flush()
+
+    def caught_up(self, printer_id: str) -> bool:
+        """Whether the printer's history was read since it last connected."""
+        feed = self._feeds.get(printer_id)
+        return feed is not None and feed.catch_up is not None and feed.catch_up.done()
+
+    # -- what the sessions tell ----------------------------------------------------------
+
+    def _on_event(self, printer_id: str, event: SessionEvent) -> None:
+        if isinstance(event, Notification):
+            if event.method == "notify_history_changed":
+                self._heard_jobs(printer_id, jobs_of_notification(event.params))
+            return
+        if isinstance(event, ConnectionChanged):
+            if event.connection == "online":
+                self._connected(printer_id)
+            else:
+                feed = self._feeds.setdefault(printer_id, _Feed())
+                feed.instance = None
+                if feed.catch_up is not None:
+                    feed.catch_up.cancel()
+        elif isinstance(event, StatusDelta) and "state" not in event.delta.get("print_stats", {}):
+            return  # temperatures and positions: no state change
+        elif not isinstance(event, KlippyChanged | StatusDelta | StatusSnapshot):
+            return
+        with contextlib.suppress(KeyError):
+            self._observe(self.fleet.sessions.get(printer_id))
+
+    def _heard_jobs(self, printer_id: str, heard: list[HistoryJob]) -> None:
+        feed = self._feeds.setdefault(printer_id, _Feed())
+        if feed.instance is None:
+            feed.waiting.extend(heard)
+            return
+        self._live.extend((printer_id, feed.instance, job) for job in heard)
+        self._wake.set()
+
+    def _connected(self, printer_id: str) -> None:
+        feed = self._feeds.setdefault(printer_id, _Feed())
+        if feed.was_online:
+            self.reconnects[printer_id] += 1
+        feed.was_online = True
+        feed.instance = None
+        if feed.catch_up is not None:
+            feed.catch_up.cancel()
+        feed.catch_up = asyncio.create_task(
+            self._catch_up(printer_id, feed), name=f"ledger-catch-up:{printer_id}"
+        )
+
+    async def _catch_up(self, printer_id: str, feed: _Feed) -> None:
+        """Read the instance id, then backfill; retried with backoff until it works or the
+        printer goes offline (its next connect starts again)."""
+        backoff = Backoff(base=1.0, cap=60.0)
+        while True:
+            try:
+                async with self._backfills:
+                    await self._backfill(printer_id, feed)
+            except Exception as exc:
+                log.warning("%s: cannot read the job history yet, retrying: %s", printer_id, exc)
+            else:
+                return
+            await asyncio.sleep(backoff.next_delay(0.0))
+
+    async def _backfill(self, printer_id: str, feed: _Feed) -> None:
+        client = self.fleet.sessions.get(printer_id).client
+        if client is None:
+            return
+        if feed.instance is None:
+            feed.instance = await read_instance(client.call)
+            self._live.extend((printer_id, feed.instance, job) for job in feed.waiting)
+            feed.waiting.clear()
+            self._wake.set()
+        instance = feed.instance
+
+        async def page(limit: int, start: int) -> dict[str, Any]:
+            self.backfill_requests += 1
+            return await client.history_list(limit, start)
+
+        floor = await self.history.floor(printer_id, instance)
+        async for found in backfill(page, floor, self._page):
+            await self._write([(printer_id, instance, job) for job in found])
+
+    # -- writing -------------------------------------------------------------------------
+
+    async def _writer(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            try:
+                await self._write_live()
+            except SQLAlchemyError:
+                log.exception("ledger: cannot write the job history; retrying in a second")
+                await asyncio.sleep(1.0)
+                self._wake.set()
+
+    async def _write_live(self) -> None:
+        batch, self._live = self._live, []
+        try:
+            await self._write(batch)
+        except BaseException:
+            self._live[:0] = batch
+            raise
+
+    async def _write(self, rows: Sequence[Row]) -> None:
+        if not rows:
+            return
+        async with self._writing:
+            await self.history.upsert(rows)
+            printers = sorted({printer for printer, _, _ in rows})
+            counts = await self.history.counts(printers)
+        kept = {key: n for key, n in self.job_counts.items() if key[0] not in printers}
+        self.job_counts = kept | counts
+
+    # -- timeline, queue, loop -------------------------------------------------------------
+
+    def _observe(self, printer: FleetPrinter, at: float | None = None) -> None:
+        live, pid = printer.live, printer.config.id
+        print_state = str(live.status.get("print_stats", {}).get("state") or "")
+        state = printer_state(live.connection, live.klippy_state, print_state, self.gates.get(pid))
+        self.timeline.observe(pid, state, at)
+
+    def _sweep(self) -> None:
+        now = time.time()
+        printers = self.fleet.sessions.all()
+        for printer in printers:
+            self._observe(printer, now)
+        present = {p.config.id for p in printers}
+        self.timeline.forget([pid for pid in self.timeline.current if pid not in present], now)
+        for pid in [pid for pid in self._feeds if pid not in present]:
+            feed = self._feeds.pop(pid)
+            if feed.catch_up is not None:
+                feed.catch_up.cancel()
+
+    async def _sweeper(self) -> None:
+        while True:
+            await asyncio.sleep(self._tick)
+            self._sweep()
+            try:
+                await self.timeline.flush()
+            except SQLAlchemyError:
+                log.exception("ledger: cannot write the printers' states; retrying")
+
+    async def _queue_reader(self) -> None:
+        warned = False
+        while True:
+            try:
+                await self._read_queue()
+                warned = False
+            except SQLAlchemyError as exc:
+                if not warned:
+                    log.warning("ledger: cannot read the queue's gates and depth: %s", exc)
+                warned = True
+            await asyncio.sleep(self._queue_poll)
+
+    async def _read_queue(self) -> None:
+        queued = jobs.c.state == "queued"
+        async with self.engine.connect() as conn:
+            found = await conn.execute(select(gates.c.printer, gates.c.state))
+            self.gates = {printer: state for printer, state in found}
+            count, left, oldest = (
+                await conn.execute(
+                    select(
+                        func.count(),
+                        func.sum(jobs.c.quantity - jobs.c.done - jobs.c.in_flight),
+                        func.min(jobs.c.created_at),
+                    ).where(queued)
+                )
+            ).one()
+        self.queue = QueueFigures.of(int(count or 0), int(left or 0), oldest)
+
+    async def _lag_meter(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            before = loop.time()
+            await asyncio.sleep(LAG_EVERY)
+            self.loop_lag = max(0.0, loop.time() - before - LAG_EVERY)

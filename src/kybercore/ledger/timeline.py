@@ -1,0 +1,149 @@
+"""Each printer's state over time, as intervals: the basis of utilisation.
+
+:func:`printer_state` names a printer's state from what KyberCore knows of it (pure).
+:class:`Timeline` keeps the current state of every printer in memory and writes a row only
+when a state changes, in batches (:meth:`Timeline.flush`): a thousand printers sending four
+status updates a second cause no writes while their states stay the same.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Final, Literal
+
+from sqlalchemy import bindparam, func, select, update
+from sqlalchemy.ext.asyncio import AsyncEngine
+
+from kybercore.ledger.tables import history_jobs, printer_states
+
+State = Literal[
+    "disabled", "offline", "error", "idle", "printing", "paused", "awaiting_clear", "maintenance"
+]
+STATES: Final[tuple[State, ...]] = (
+    "disabled", "offline", "error", "idle", "printing", "paused", "awaiting_clear", "maintenance",
+)  # fmt: skip
+"""``disabled``: switched off in printers.json (offline by plan). ``offline``: Moonraker or
+Klippy cannot be reached. ``error``: Klippy is in shutdown or error. ``awaiting_clear`` and
+``maintenance`` come from the queue's gate."""
+
+
+def printer_state(connection: str, klippy: str, print_state: str, gate: str | None) -> State:
+    """The timeline state of one printer.
+
+    ``connection`` and ``klippy`` as the session reports them, ``print_state`` is
+    ``print_stats.state``, ``gate`` the queue gate's state (None: no queue). A print running
+    wins over the gate; maintenance wins over being unreachable (the printer may be off
+    for it); a plate waiting to be cleared shows only on a reachable, ready printer.
+    """
+    if connection == "disabled":
+        return "disabled"
+    ready = connection == "online" and klippy == "ready"
+    if ready and print_state in ("printing", "paused"):
+        return "printing" if print_state == "printing" else "paused"
+    if gate == "maintenance":
+        return "maintenance"
+    if connection != "online" or klippy not in ("ready", "shutdown", "error"):
+        return "offline"
+    if klippy != "ready":
+        return "error"
+    return "awaiting_clear" if gate == "awaiting_clear" else "idle"
+
+
+@dataclass(frozen=True)
+class Change:
+    """A printer entered ``state`` at ``at`` (None: it left the fleet)."""
+
+    printer: str
+    state: State | None
+    at: float
+
+
+class Timeline:
+    """The ``printer_states`` table, written only on changes, in batches."""
+
+    def __init__(self, engine: AsyncEngine) -> None:
+        self._engine = engine
+        self._current: dict[str, State] = {}
+        self._pending: list[Change] = []
+
+    @property
+    def current(self) -> dict[str, State]:
+        """Every known printer's state now (shared: do not modify)."""
+        return self._current
+
+    def observe(self, printer: str, state: State, at: float | None = None) -> None:
+        """Note the printer's state; a change is written with the next :meth:`flush`."""
+        if self._current.get(printer) != state:
+            self._current[printer] = state
+            self._pending.append(Change(printer, state, time.time() if at is None else at))
+
+    def forget(self, printers: Iterable[str], at: float | None = None) -> None:
+        """Printers no longer in the fleet: their open interval ends."""
+        when = time.time() if at is None else at
+        for printer in printers:
+            if self._current.pop(printer, None) is not None:
+                self._pending.append(Change(printer, None, when))
+
+    async def flush(self) -> int:
+        """Write the changes noted since the last flush in one transaction; how many."""
+        changes, self._pending = self._pending, []
+        if not changes:
+            return 0
+        first: dict[str, float] = {}
+        rows = []
+        for index, change in enumerate(changes):
+            first.setdefault(change.printer, change.at)
+            if change.state is None:
+                continue
+            following = (c.at for c in changes[index + 1 :] if c.printer == change.printer)
+            end = next(following, None)
+            rows.append(
+                {"printer": change.printer, "state": change.state, "started_at": change.at,
+                 "ended_at": end}
+            )  # fmt: skip
+        try:
+            async with self._engine.begin() as conn:
+                await conn.execute(
+                    update(printer_states)
+                    .where(
+                        printer_states.c.printer == bindparam("p"),
+                        printer_states.c.ended_at.is_(None),
+                    )
+                    .values(ended_at=bindparam("at")),
+                    [{"p": printer, "at": at} for printer, at in first.items()],
+                )
+                if rows:
+                    await conn.execute(printer_states.insert(), rows)
+        except BaseException:
+            self._pending[:0] = changes  # written next time, in order
+            raise
+        return len(changes)
+
+    async def recover(self) -> None:
+        """End the intervals a previous run left open (it stopped without :meth:`close`),
+        at the last moment that run is known to have been alive: its newest state change
+        or history write. The time it was down is in no interval (not observed)."""
+        async with self._engine.begin() as conn:
+            last = max(
+                (await conn.scalar(select(func.max(printer_states.c.started_at)))) or 0.0,
+                (await conn.scalar(select(func.max(history_jobs.c.updated_at)))) or 0.0,
+            )
+            await conn.execute(
+                update(printer_states)
+                .where(printer_states.c.ended_at.is_(None))
+                .values(ended_at=last)
+            )
+            # An interval never ends before it starts.
+            await conn.execute(
+                update(printer_states)
+                .where(printer_states.c.ended_at < printer_states.c.started_at)
+                .values(ended_at=printer_states.c.started_at)
+            )
+
+    async def close(self, at: float | None = None) -> None:
+        """Write what is pending and end every open interval (KyberCore is stopping)."""
+        self.forget(list(self._current), at)
+        await self.flush()
+
