@@ -22,9 +22,7 @@ async def api(kybercore_server: KyberCoreServer) -> AsyncIterator[httpx.AsyncCli
 async def test_a_heating_printer_draws_its_curve(api: httpx.AsyncClient) -> None:
     path = "/api/printers/fleet-b/temperatures"
     asked = time.time()
-    answer = await api.post(
-        "/api/printers/fleet-b/actions/set_temperature", json={"extruder": 60}
-    )
+    answer = await api.post("/api/printers/fleet-b/actions/set_temperature", json={"extruder": 60})
     assert answer.status_code == 200, answer.text
     try:
 

@@ -13,10 +13,12 @@ resource:
   last half hour;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
+- :mod:`kybercore.api.audit`: ``/api/audit``, the audit log (admins);
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
 - :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
 
-Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
+Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first; every action
+is recorded in the audit log by :class:`~kybercore.api.recorder.AuditMiddleware`.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
-from kybercore.api import files, fleet, printers, session, temperatures, ws
+from kybercore.api import audit, files, fleet, printers, session, temperatures, ws
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -44,9 +46,12 @@ from kybercore.api.errors import (
 )
 from kybercore.api.guard import GuardMiddleware
 from kybercore.api.hosts import HostAllowlist
+from kybercore.api.recorder import AuditMiddleware
 from kybercore.api.security import Access
+from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
+from kybercore.ledger.audit import AuditLog
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.store import PrinterRegistry
 
@@ -59,21 +64,28 @@ def create_app(
     access: Access | None = None,
     *,
     allowed_hosts: HostAllowlist | None = None,
+    database_url: str | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
-    (plus any IP address) unless told; ``service_options`` go to :class:`FleetService`."""
+    (plus any IP address) unless told; its database at ``database_url`` (default: SQLite
+    beside printers.json); ``service_options`` go to :class:`FleetService`."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        async with new_http_client() as http:
-            service = FleetService(registry, http, **service_options)
-            await service.start()
-            app.state.service = service
-            try:
-                yield
-            finally:
-                await service.stop()
+        engine = await open_database(database_url or default_database_url(registry.path.parent))
+        app.state.audit = AuditLog(engine)
+        try:
+            async with new_http_client() as http:
+                service = FleetService(registry, http, **service_options)
+                await service.start()
+                app.state.service = service
+                try:
+                    yield
+                finally:
+                    await service.stop()
+        finally:
+            await engine.dispose()
 
     app = FastAPI(
         title="KyberCore",
@@ -96,7 +108,9 @@ def create_app(
         hosts=allowed_hosts or HostAllowlist(),
         upload_limit=MAX_UPLOAD_BYTES,
     )
-    for module in (fleet, printers, files, temperatures, ws, session):
+    # Outside the guard: it records the answer the client really gets (a 413 included).
+    app.add_middleware(AuditMiddleware)
+    for module in (fleet, printers, files, temperatures, ws, session, audit):
         app.include_router(module.router)
     add_docs(app)
 
