@@ -12,6 +12,10 @@ resource:
 - :mod:`kybercore.api.temperatures`: ``/api/printers/{id}/temperatures``, the heaters'
   last half hour;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
+- :mod:`kybercore.api.jobs`: ``/api/jobs``, ``/api/queue``, ``/api/gates`` and the plate
+  gates (``/api/printers/{id}/clear|hold|release``): the job queue;
+- :mod:`kybercore.api.history`: ``/api/history``, ``/api/history.csv``, ``/api/stats``:
+  the ledger's job history and statistics; :mod:`kybercore.api.metrics`: ``/metrics``;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.audit`: ``/api/audit``, the audit log (admins);
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
@@ -19,11 +23,15 @@ resource:
 
 Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first; every action
 is recorded in the audit log by :class:`~kybercore.api.recorder.AuditMiddleware`.
+
+The lifespan opens the queue's database (SQLite beside printers.json unless a URL is
+given), then starts the fleet and the queue; it stops them in the reverse order.
 """
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import asyncio
+from collections.abc import AsyncIterator, Callable, Coroutine, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any, Final
@@ -35,7 +43,19 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
-from kybercore.api import audit, files, fleet, printers, session, temperatures, ws
+from kybercore.aio import cancel_and_wait
+from kybercore.api import (
+    audit,
+    files,
+    fleet,
+    history,
+    jobs,
+    metrics,
+    printers,
+    session,
+    temperatures,
+    ws,
+)
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -51,12 +71,20 @@ from kybercore.api.security import Access
 from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
+from kybercore.jobs.files import JobFiles
+from kybercore.jobs.service import QueueService
+from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
+from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.store import PrinterRegistry
 
 WEB_DIR: Final = Path(__file__).parent.parent / "web"
 MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
+
+
+OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
+"""Work to run once the fleet and the queue are up (``kybercore demo`` queues its jobs)."""
 
 
 def create_app(
@@ -65,24 +93,42 @@ def create_app(
     *,
     allowed_hosts: HostAllowlist | None = None,
     database_url: str | None = None,
+    queue_options: Mapping[str, Any] | None = None,
+    on_started: OnStarted | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
-    (plus any IP address) unless told; its database at ``database_url`` (default: SQLite
-    beside printers.json); ``service_options`` go to :class:`FleetService`."""
+    (plus any IP address) unless told; the queue's database at ``database_url`` (default:
+    SQLite beside printers.json); ``queue_options`` go to :class:`QueueService` and
+    ``service_options`` to :class:`FleetService`."""
+    folder = registry.path.parent
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        engine = await open_database(database_url or default_database_url(registry.path.parent))
+        engine = await open_database(database_url or default_database_url(folder))
         app.state.audit = AuditLog(engine)
         try:
             async with new_http_client() as http:
                 service = FleetService(registry, http, **service_options)
+                queue = QueueService(
+                    service, JobStore(engine), JobFiles(folder / "files"), **(queue_options or {})
+                )
                 await service.start()
+                await queue.start()
                 app.state.service = service
+                app.state.queue = queue
+                # -- the ledger (issue 17): history, state timeline, /metrics --------
+                ledger = LedgerService(service, engine)
+                await ledger.start()
+                app.state.ledger = ledger
+                # ---------------------------------------------------------------------
+                started = asyncio.create_task(on_started(service, queue)) if on_started else None
                 try:
                     yield
                 finally:
+                    await cancel_and_wait(started)
+                    await ledger.stop()
+                    await queue.stop()
                     await service.stop()
         finally:
             await engine.dispose()
@@ -110,7 +156,9 @@ def create_app(
     )
     # Outside the guard: it records the answer the client really gets (a 413 included).
     app.add_middleware(AuditMiddleware)
-    for module in (fleet, printers, files, temperatures, ws, session, audit):
+    for module in (fleet, printers, files, temperatures, jobs, ws, session, audit):
+        app.include_router(module.router)
+    for module in (history, metrics):  # the ledger (issue 17)
         app.include_router(module.router)
     add_docs(app)
 

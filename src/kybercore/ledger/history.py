@@ -24,8 +24,10 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
 from kybercore.core.numbers import finite_number
+from kybercore.db import transaction
 from kybercore.errors import MoonrakerRpcError
-from kybercore.ledger.tables import attempts, history_jobs
+from kybercore.jobs.tables import attempts
+from kybercore.ledger.tables import history_jobs
 
 log = logging.getLogger(__name__)
 
@@ -170,7 +172,6 @@ class HistoryStore:
 
     def __init__(self, engine: AsyncEngine) -> None:
         self._engine = engine
-        self._insert = postgresql.insert if engine.dialect.name == "postgresql" else sqlite.insert
 
     async def upsert(self, rows: Sequence[tuple[str, str, HistoryJob]]) -> None:
         """Write ``(printer, instance, job)`` rows in one transaction: insert new jobs,
@@ -179,18 +180,27 @@ class HistoryStore:
         if not rows:
             return
         now = time.time()
-        async with self._engine.begin() as conn:
+
+        async def work(conn: AsyncConnection) -> None:
             for chunk in range(0, len(rows), _ROWS_PER_STATEMENT):
                 await self._upsert(conn, rows[chunk : chunk + _ROWS_PER_STATEMENT], now)
+
+        await transaction(self._engine, work)
 
     async def _upsert(
         self, conn: AsyncConnection, rows: Sequence[tuple[str, str, HistoryJob]], now: float
     ) -> None:
-        # The last copy of a job in the batch wins, as it would in separate statements
-        # (PostgreSQL refuses one statement that touches a row twice).
-        latest = {(p, i, job.job_id): (p, i, job) for p, i, job in rows}
+        # One row per job per statement (PostgreSQL refuses to touch a row twice), chosen
+        # by the rule the statement applies between rows: a later copy wins, except that
+        # an in-progress copy never replaces a finished one.
+        latest: dict[tuple[str, str, str], tuple[str, str, HistoryJob]] = {}
+        for p, i, job in rows:
+            known = latest.get((p, i, job.job_id))
+            if known is None or job.status != IN_PROGRESS or known[2].status == IN_PROGRESS:
+                latest[(p, i, job.job_id)] = (p, i, job)
         values = [_row(p, i, job, now) for p, i, job in latest.values()]
-        stmt = self._insert(history_jobs).values(values)
+        insert = postgresql.insert if conn.dialect.name == "postgresql" else sqlite.insert
+        stmt = insert(history_jobs).values(values)
         new = stmt.excluded
         table = history_jobs.c
         changed: dict[str, Any] = {name: new[name] for name in _UPDATED}

@@ -15,7 +15,8 @@ from typing import Any, Final
 from sqlalchemy import ColumnElement, Float, Select, and_, func, literal, or_, select
 from sqlalchemy.ext.asyncio import AsyncEngine
 
-from kybercore.ledger.tables import attempts, history_jobs, jobs
+from kybercore.jobs.tables import attempts, jobs, queue_events
+from kybercore.ledger.tables import history_jobs
 
 COLUMNS: Final = (
     "printer", "moonraker_job_id", "filename", "sha256", "job_id", "attempt_id", "status",
@@ -24,6 +25,8 @@ COLUMNS: Final = (
 )  # fmt: skip
 """A history row's fields, in the CSV's column order."""
 CSV_BATCH: Final = 500
+CLEARED: Final = "gate_cleared"
+"""The queue event that records a plate's verdict (its time is the row's ``cleared_at``)."""
 
 
 @dataclass(frozen=True)
@@ -63,13 +66,19 @@ def _query(where: HistoryFilter) -> Select[Any]:
     joined = history_jobs.outerjoin(attempts, attempts.c.id == h.attempt_id).outerjoin(
         jobs, jobs.c.id == attempts.c.job_id
     )
+    cleared = (
+        select(func.max(queue_events.c.at))
+        .where(queue_events.c.attempt_id == h.attempt_id, queue_events.c.kind == CLEARED)
+        .scalar_subquery()
+    )
     fields = (
-        h.printer, h.moonraker_job_id, h.filename, jobs.c.sha256, attempts.c.job_id,
-        h.attempt_id, h.status, jobs.c.created_at.label("queued_at"), h.start_time,
-        h.end_time, attempts.c.cleared_at, attempts.c.verdict, attempts.c.cause,
-        h.print_duration, h.filament_used, h.filament_g, _user().label("user"), h.id,
+        h.printer, h.moonraker_job_id, h.filename, jobs.c.file_sha256.label("sha256"),
+        attempts.c.job_id, h.attempt_id, h.status, jobs.c.created_at.label("queued_at"),
+        h.start_time, h.end_time, cleared.label("cleared_at"), attempts.c.verdict,
+        attempts.c.cause, h.print_duration, h.filament_used, h.filament_g,
+        _user().label("user"), h.id,
     )  # fmt: skip
-    return select(*fields).select_from(joined).where(and_(*conditions))
+    return select(*fields).select_from(joined).where(*conditions)
 
 
 async def page(

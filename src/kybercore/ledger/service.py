@@ -28,6 +28,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 from kybercore.aio import cancel_and_wait
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter
+from kybercore.jobs.tables import gates, jobs
 from kybercore.ledger.history import (
     PAGE,
     HistoryJob,
@@ -37,7 +38,6 @@ from kybercore.ledger.history import (
     read_instance,
 )
 from kybercore.ledger.metrics import FleetCollector, QueueFigures
-from kybercore.ledger.tables import gates, jobs
 from kybercore.ledger.timeline import Timeline, printer_state
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (

@@ -16,6 +16,7 @@ per day, utilisation from the state timeline.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter, defaultdict
 from collections.abc import Sequence
@@ -40,7 +41,8 @@ from sqlalchemy.ext.compiler import compiles
 from sqlalchemy.sql.functions import GenericFunction
 
 from kybercore.errors import InvalidInput
-from kybercore.ledger.tables import attempts, history_jobs, jobs, printer_states
+from kybercore.jobs.tables import attempts, jobs
+from kybercore.ledger.tables import history_jobs, printer_states
 
 GroupBy = Literal["printer", "file", "material", "day"]
 DAY: Final = 86400.0
@@ -138,7 +140,7 @@ async def statistics(
 def _days(begin: float, end: float) -> list[tuple[str, float, float]]:
     """The UTC days the window touches: ``(YYYY-MM-DD, start, end)``, clipped to it."""
     first = int(begin // DAY)
-    last = int((end - 1e-9) // DAY)
+    last = math.ceil(end / DAY) - 1  # a window ending at midnight ends the day before
     if last - first + 1 > MAX_DAYS:
         raise InvalidInput(
             f"A daily breakdown covers at most {MAX_DAYS} days. Narrow 'from' and 'to'."
@@ -182,7 +184,7 @@ def _jobs_query(
         # A queued job's copies each have their own upload name: group them under the
         # job's file name.
         joined = joined.outerjoin(jobs, jobs.c.id == attempts.c.job_id)
-        key = func.coalesce(jobs.c.filename, h.filename)
+        key = func.coalesce(jobs.c.file_name, h.filename)
     else:
         assert days is not None
         table = _days_table(days)

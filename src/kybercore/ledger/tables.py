@@ -2,9 +2,8 @@
 
 Times are epoch seconds (UTC) in double precision, as Moonraker gives them: the same
 arithmetic (durations, overlaps, day buckets) then runs unchanged on SQLite and PostgreSQL.
-The queue's own tables (``jobs``, ``attempts``, ``queue_events``, ``gates``) belong to
-:mod:`kybercore.jobs.store`; the ledger only reads them, through the few columns named in
-:data:`attempts`, :data:`jobs` and :data:`gates`.
+The queue's own tables (:mod:`kybercore.jobs.tables`) the ledger only reads: a job's
+attempt, file and verdict, the printers' gates, the queue's depth.
 """
 
 from __future__ import annotations
@@ -15,6 +14,7 @@ from sqlalchemy import (
     JSON,
     Column,
     Double,
+    ForeignKey,
     Index,
     Integer,
     MetaData,
@@ -22,9 +22,9 @@ from sqlalchemy import (
     Table,
     Text,
     UniqueConstraint,
-    column,
-    table,
 )
+
+from kybercore.jobs.tables import attempts
 
 metadata: Final = MetaData()
 
@@ -50,7 +50,12 @@ history_jobs: Final = Table(
     Column("material", String(64), nullable=True),
     Column("file_meta", JSON, nullable=True),
     # The queue attempt that printed it (its upload name is the file name), if any.
-    Column("attempt_id", Integer, nullable=True),
+    Column(
+        "attempt_id",
+        Integer,
+        ForeignKey(attempts.c.id, ondelete="SET NULL"),
+        nullable=True,
+    ),
     Column("updated_at", Double, nullable=False),
     UniqueConstraint("printer", "instance", "moonraker_job_id", name="uq_history_jobs_job"),
     Index("ix_history_jobs_start", "start_time"),
@@ -69,16 +74,3 @@ printer_states: Final = Table(
     Index("ix_printer_states_printer_open", "printer", "ended_at"),
     Index("ix_printer_states_started", "started_at"),
 )
-
-# The queue's tables, read only: the columns the ledger joins and counts.
-attempts: Final = table(
-    "attempts",
-    column("id"), column("job_id"), column("printer"), column("upload_name"),
-    column("verdict"), column("cause"), column("user"), column("cleared_at"),
-)  # fmt: skip
-jobs: Final = table(
-    "jobs",
-    column("id"), column("sha256"), column("filename"), column("state"), column("quantity"),
-    column("done"), column("in_flight"), column("created_at"), column("created_by"),
-)  # fmt: skip
-gates: Final = table("gates", column("printer"), column("state"))

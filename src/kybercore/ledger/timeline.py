@@ -14,8 +14,9 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 from sqlalchemy import bindparam, func, select, update
-from sqlalchemy.ext.asyncio import AsyncEngine
+from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
+from kybercore.db import transaction
 from kybercore.ledger.tables import history_jobs, printer_states
 
 State = Literal[
@@ -91,31 +92,33 @@ class Timeline:
         changes, self._pending = self._pending, []
         if not changes:
             return 0
-        first: dict[str, float] = {}
+        # Backwards: each interval ends where the printer's next change starts; what is
+        # left in `start` is each printer's first change, which ends its open interval.
+        start: dict[str, float] = {}
         rows = []
-        for index, change in enumerate(changes):
-            first.setdefault(change.printer, change.at)
-            if change.state is None:
-                continue
-            following = (c.at for c in changes[index + 1 :] if c.printer == change.printer)
-            end = next(following, None)
-            rows.append(
-                {"printer": change.printer, "state": change.state, "started_at": change.at,
-                 "ended_at": end}
-            )  # fmt: skip
+        for change in reversed(changes):
+            if change.state is not None:
+                rows.append(
+                    {"printer": change.printer, "state": change.state,
+                     "started_at": change.at, "ended_at": start.get(change.printer)}
+                )  # fmt: skip
+            start[change.printer] = change.at
+        rows.reverse()
+        ended = [{"p": printer, "at": at} for printer, at in start.items()]
+
+        async def work(conn: AsyncConnection) -> None:
+            states = printer_states.c
+            await conn.execute(
+                update(printer_states)
+                .where(states.printer == bindparam("p"), states.ended_at.is_(None))
+                .values(ended_at=bindparam("at")),
+                ended,
+            )
+            if rows:
+                await conn.execute(printer_states.insert(), rows)
+
         try:
-            async with self._engine.begin() as conn:
-                await conn.execute(
-                    update(printer_states)
-                    .where(
-                        printer_states.c.printer == bindparam("p"),
-                        printer_states.c.ended_at.is_(None),
-                    )
-                    .values(ended_at=bindparam("at")),
-                    [{"p": printer, "at": at} for printer, at in first.items()],
-                )
-                if rows:
-                    await conn.execute(printer_states.insert(), rows)
+            await transaction(self._engine, work)
         except BaseException:
             self._pending[:0] = changes  # written next time, in order
             raise
@@ -125,22 +128,24 @@ class Timeline:
         """End the intervals a previous run left open (it stopped without :meth:`close`),
         at the last moment that run is known to have been alive: its newest state change
         or history write. The time it was down is in no interval (not observed)."""
-        async with self._engine.begin() as conn:
+
+        async def work(conn: AsyncConnection) -> None:
             last = max(
                 (await conn.scalar(select(func.max(printer_states.c.started_at)))) or 0.0,
                 (await conn.scalar(select(func.max(history_jobs.c.updated_at)))) or 0.0,
             )
+            states = printer_states.c
             await conn.execute(
-                update(printer_states)
-                .where(printer_states.c.ended_at.is_(None))
-                .values(ended_at=last)
+                update(printer_states).where(states.ended_at.is_(None)).values(ended_at=last)
             )
             # An interval never ends before it starts.
             await conn.execute(
                 update(printer_states)
-                .where(printer_states.c.ended_at < printer_states.c.started_at)
-                .values(ended_at=printer_states.c.started_at)
+                .where(states.ended_at < states.started_at)
+                .values(ended_at=states.started_at)
             )
+
+        await transaction(self._engine, work)
 
     async def close(self, at: float | None = None) -> None:
         """Write what is pending and end every open interval (KyberCore is stopping)."""

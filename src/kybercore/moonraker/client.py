@@ -251,7 +251,12 @@ class MoonrakerClient:
             "checksum": checksum,
             "print": "true" if start else "false",
         }
-        files = {"file": (filename, content, "application/octet-stream")}
+        folder, _, name = filename.rpartition("/")
+        if folder:
+            # Moonraker creates missing folders only from the ``path`` field; a folder in
+            # the file name alone fails with "Unable to save file".
+            data["path"] = folder
+        files = {"file": (name, content, "application/octet-stream")}
         response = await self._channel.send(
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )

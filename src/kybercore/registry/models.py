@@ -115,6 +115,9 @@ _DOC = {
     "name": "Name shown to people, 1-100 characters.",
     "model": "Printer model, e.g. 'Voron 2.4'.",
     "location": "Where the printer is, e.g. 'Room B, shelf 2'.",
+    "power_group": "The circuit the printer shares with others, e.g. 'Room B, breaker 3': "
+    "the job queue lets only a few printers of one group heat at once. Empty means its "
+    "location.",
     "tags": "Short labels (1-32 characters each, at most 32) for grouping; duplicates dropped.",
     "notes": "Free text for the operators, up to 2000 characters.",
     "moonraker_url": "Moonraker base URL: http or https, host, optional port and path "
@@ -162,6 +165,7 @@ class _PrinterFields(_Model):
     name: Name = Field(description=_DOC["name"])
     model: ShortText = Field(default="", description=_DOC["model"])
     location: ShortText = Field(default="", description=_DOC["location"])
+    power_group: ShortText = Field(default="", description=_DOC["power_group"])
     tags: Tags = Field(default_factory=list, description=_DOC["tags"])
     notes: Notes = Field(default="", description=_DOC["notes"])
     moonraker_url: Url = Field(description=_DOC["moonraker_url"])
@@ -195,6 +199,7 @@ class PrinterPublic(_Model):
     name: Name = Field(description=_DOC["name"])
     model: ShortText = Field(description=_DOC["model"])
     location: ShortText = Field(description=_DOC["location"])
+    power_group: ShortText = Field(description=_DOC["power_group"])
     tags: Tags = Field(description=_DOC["tags"])
     notes: Notes = Field(description=_DOC["notes"])
     moonraker_url: Url = Field(description=_DOC["moonraker_url"])
@@ -226,6 +231,7 @@ class PrinterUpdate(_Model):
     name: Name | None = Field(default=None, description=_DOC["name"])
     model: ShortText | None = Field(default=None, description=_DOC["model"])
     location: ShortText | None = Field(default=None, description=_DOC["location"])
+    power_group: ShortText | None = Field(default=None, description=_DOC["power_group"])
     tags: Tags | None = Field(default=None, description=_DOC["tags"])
     notes: Notes | None = Field(default=None, description=_DOC["notes"])
     moonraker_url: Url | None = Field(default=None, description=_DOC["moonraker_url"])
