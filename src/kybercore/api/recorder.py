@@ -49,6 +49,7 @@ ACTIONS: Final = {
     ("DELETE", "/api/jobs/{job_id}"): "job.cancel",
     ("POST", "/api/jobs/{job_id}/move"): "job.move",
     ("POST", "/api/jobs/{job_id}/requeue"): "job.requeue",
+    ("POST", "/api/queue"): "queue.change",
     ("POST", "/api/session"): "session.login",
     ("DELETE", "/api/session"): "session.logout",
 }
@@ -68,7 +69,7 @@ _NOTE: Final = "kybercore_audit"
 
 def note(connection: HTTPConnection, **fields: Any) -> None:
     """Add to the audit row of this request what only the route knows: ``params`` (merged
-    into the parameters), ``actor`` and ``role``, ``target``."""
+    into the parameters), ``actor`` and ``role``, ``action``, ``target``."""
     noted: dict[str, Any] = connection.scope.setdefault("state", {}).setdefault(_NOTE, {})
     params = {**noted.get("params", {}), **fields.pop("params", {})}
     noted.update(fields, params=params)
@@ -180,10 +181,13 @@ class _Recording:
             params["body"] = body
         noted: dict[str, Any] = self.scope.get("state", {}).get(_NOTE, {})
         params.update(noted.get("params", {}))
+        answer = _json(self.answer)
+        if not target and self.status < 300 and isinstance(answer, Mapping) and "id" in answer:
+            target = f"{name.split('.')[0]}:{answer['id']}"  # what it created: printer:x, job:7
         base = AuditEntry(
             actor=noted.get("actor", self.actor),
             role=noted.get("role", self.role),
-            action=name,
+            action=noted.get("action", name),
             target=noted.get("target", target),
             params=params,
             outcome=outcome or self._outcome(),
@@ -191,7 +195,7 @@ class _Recording:
             request_id=self.request_id,
         )
         if path == BULK_ROUTE and self.status == 200:
-            return _per_printer(base, _json(self.answer))
+            return _per_printer(base, answer)
         return [base]
 
     def _outcome(self) -> str:
