@@ -22,7 +22,7 @@ import pytest
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, free_port
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, travel_gcode
 
 pytestmark = pytest.mark.integration
 
@@ -183,6 +183,41 @@ def test_rest_and_cli_actions_are_recorded_with_actor_and_outcome(farm: Farm) ->
         stored = json.dumps(db.execute("SELECT * FROM audit").fetchall())
     assert len(json.loads(stored)) == len(rows)
     assert not [s for s in secrets if s in stored]
+
+
+def test_a_plate_clear_is_recorded_with_its_verdict_and_outcome(farm: Farm) -> None:
+    with farm.client(farm.olga) as olga:
+        queued = olga.post(
+            "/api/jobs",
+            files={"file": ("cube.gcode", travel_gcode(8), "application/octet-stream")},
+            data={"quantity": "1"},
+        )
+        assert queued.status_code == 201, queued.text
+        job_id = queued.json()["id"]
+        for _ in range(1200):  # the queue starts it on p; it prints for a few seconds
+            if olga.get("/api/gates").json()["p"]["state"] == "awaiting_clear":
+                break
+            subprocess.run(["sleep", "0.1"], check=True)  # poll: bounded above (120 s)
+        else:
+            pytest.fail("printer p never awaited a clear")
+        cleared = olga.post("/api/printers/p/clear", json={"verdict": "good", "cause": ""})
+        assert cleared.status_code == 200, cleared.text
+        again = olga.post("/api/printers/p/clear", json={"verdict": "bad", "cause": "spaghetti"})
+        assert again.status_code == 409, again.text
+
+    created = one(farm.audit(action="job.create"), actor="olga")
+    assert created["target"] == f"job:{job_id}"
+    assert created["params"]["file"] == "cube.gcode"
+    assert created["outcome"] == "ok"
+    clears = farm.audit(action="plate.clear", target="p")
+    assert [(r["actor"], r["role"], r["outcome"]) for r in reversed(clears)] == [
+        ("olga", "operator", "ok"),
+        ("olga", "operator", again.json()["error"]["code"]),
+    ]
+    assert [r["params"] for r in reversed(clears)] == [
+        {"verdict": "good", "cause": ""},
+        {"verdict": "bad", "cause": "spaghetti"},
+    ]
 
 
 def test_only_admins_read_it_and_nobody_edits_it(farm: Farm) -> None:
