@@ -20,6 +20,7 @@ import httpx
 import pytest
 
 from kybercore.db import default_database_url
+from kybercore.errors import ActionRejected
 from kybercore.jobs.models import Attempt
 from kybercore.registry.models import PrinterUpdate
 from kybercore.sim.stack import PrinterStack
@@ -166,9 +167,9 @@ async def test_cancelling_a_job_with_a_copy_printing_asks_then_cancels_the_print
             "part.gcode", travel_gcode(moves=30, feedrate=3000), user="alice"
         )
         attempt = await _wait_attempt(live, job.id, "printing")
-        with pytest.raises(Exception) as refused:
+        with pytest.raises(ActionRejected) as refused:
             await live.queue.cancel_job(job.id, "alice", confirm=False)
-        assert getattr(refused.value, "code", "") == "confirmation_required"
+        assert refused.value.code == "confirmation_required"
         assert "p" in str(refused.value)
         assert live.print_stats("p")["state"] == "printing"
 

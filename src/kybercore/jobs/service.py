@@ -18,7 +18,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.dispatcher import Dispatcher
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job, NewJob, PlateVerdict, Requirements
-from kybercore.jobs.rules import WhyLine, never_printable, why
+from kybercore.jobs.rules import PrinterSnapshot, WhyLine, never_printable, why
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker
 
@@ -54,7 +54,9 @@ class QueueService:
             heating_budget=heating_budget,
             start_within=start_within,
         )
-        store.on_change = self._changed
+        # The store is built before the service that listens to it (the app and the CLI
+        # make it); it has one listener, and it is this service's.
+        store._on_change = self._changed
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -103,7 +105,7 @@ class QueueService:
             allow_mismatch=allow_mismatch,
             max_attempts=max_attempts,
         )
-        refusals = never_printable(new, self._printers())
+        refusals = never_printable(new, await self._snapshots())
         if refusals:
             raise ActionRejected(
                 "No printer of the fleet could ever print this job: "
@@ -223,17 +225,16 @@ class QueueService:
         return why(
             job,
             await self._snapshots(),
+            queue=await self.store.jobs(),
             heating_budget=dispatcher.heating_budget,
             starting=dispatcher.starting(),
             now=dispatcher.now(),
             paused=await self.store.queue_paused(),
-            attempts_per_printer=await self.store.attempts_per_printer(job_id),
+            attempts_per_printer={job_id: await self.store.attempts_per_printer(job_id)},
+            memo=dispatcher.memo,
         )
 
-    def _printers(self) -> list[Any]:
-        return [p.config for p in self.fleet.sessions.all()]
-
-    async def _snapshots(self) -> list[Any]:
+    async def _snapshots(self) -> list[PrinterSnapshot]:
         gates = await self.store.gates()
         usage = await self.store.usage(self.dispatcher.usage_since())
         return self.dispatcher.snapshots(gates, usage)

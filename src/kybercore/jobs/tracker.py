@@ -62,7 +62,9 @@ class Outcome:
         return self.state not in ("printing", "paused")
 
 
-def seen(status: Status, klippy_state: str, klippy_message: str, upload_name: str) -> Outcome | None:
+def seen(
+    status: Status, klippy_state: str, klippy_message: str, upload_name: str
+) -> Outcome | None:
     """What the printer's live state says about the print of ``upload_name``; None when it
     does not show that print (another file, none, or Klippy not there to tell)."""
     stats = status.get("print_stats", {})
