@@ -79,6 +79,7 @@ export async function timeChart(box, { series, data, height = 180, unit = "" }) 
         stroke: color(s.stroke),
         width: s.dash ? 1 : 2,
         dash: s.dash ? [6, 4] : undefined,
+        points: { show: false },
         value: (u, v) => (v === null || v === undefined ? "—" : `${v.toFixed(1)}${unit}`),
       })),
     ],
@@ -89,10 +90,11 @@ export async function timeChart(box, { series, data, height = 180, unit = "" }) 
 
 /**
  * Bars over categories (printers) or days. labels: the x labels; series: [{label, fill
- * (CSS variable), values}]. stacked: each bar stands on the ones before it. time: the
- * labels are epoch seconds (days). format(v) writes a value for the legend and the axis.
+ * (CSS variable), values}]; xLabel names the x value in the legend. stacked: each bar
+ * stands on the ones before it. time: the labels are epoch seconds (UTC days). format(v)
+ * writes a value for the legend and the axis.
  */
-export async function barChart(box, { labels, series, stacked = false, time = false, height = 220, format = String, max }) {
+export async function barChart(box, { labels, series, xLabel = "", stacked = false, time = false, height = 220, format = String, max }) {
   const uPlot = await loadCharts();
   const xs = time ? labels : labels.map((_, i) => i);
   // Stacked: draw the running totals, tallest first, so each segment shows its own part.
@@ -115,7 +117,9 @@ export async function barChart(box, { labels, series, stacked = false, time = fa
       axis({ values: (u, splits) => splits.map(format), size: 56 }),
     ],
     series: [
-      {},
+      time
+        ? { label: xLabel, value: (u, v) => (v === null || v === undefined ? "—" : new Date(v * 1000).toISOString().slice(0, 10)) }
+        : { label: xLabel, value: (u, v) => (v === null || v === undefined ? "—" : labels[v] ?? "—") },
       ...order.map((i) => ({
         label: series[i].label,
         fill: color(series[i].fill),

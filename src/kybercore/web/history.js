@@ -161,7 +161,7 @@ function render({ total, items }) {
   els.empty.hidden = items.length > 0;
   setText(els.empty, t("history.empty"));
   const first = items.length ? offset + 1 : 0;
-  setText(els.summary, t("history.summary", { total }));
+  setText(els.summary, t(total === 1 ? "history.summary_one" : "history.summary", { total }));
   setText(els.pageText, t("history.page", { first, last: offset + items.length, total }));
   els.prev.disabled = offset === 0;
   els.next.disabled = offset + items.length >= total;

@@ -112,6 +112,7 @@ function drawUtilisation(rows) {
   summary(els.utilisation.box, t("stats.utilisation"), rows.map((r, i) => `${names[i]} ${percent(r.utilisation)}`));
   return barChart(els.utilisation.box, {
     labels: names,
+    xLabel: t("history.printer"),
     series: [{ label: t("stats.utilisation_series"), fill: "--printing", values }],
     format: percent,
     max: 1,
@@ -123,6 +124,7 @@ function drawSuccess(rows) {
   summary(els.success.box, t("stats.success"), rows.map((r, i) => `${names[i]} ${percent(r.success_rate)}`));
   return barChart(els.success.box, {
     labels: names,
+    xLabel: t("history.printer"),
     series: [{ label: t("stats.success_series"), fill: "--ready", values: rows.map((r) => r.success_rate) }],
     format: percent,
     max: 1,
@@ -150,5 +152,12 @@ function drawPerDay(rows, from, to) {
     .filter((r) => Object.values(r.jobs).some((n) => n > 0))
     .map((r) => `${r.key}: ${Object.entries(r.jobs).filter(([, n]) => n > 0).map(([o, n]) => `${n} ${outcomeText(o)}`).join(" + ")}`);
   summary(els.perDay.box, t("stats.per_day"), parts);
-  return barChart(els.perDay.box, { labels: days, series, stacked: true, time: true, format: (v) => String(Math.round(v)) });
+  return barChart(els.perDay.box, {
+    labels: days,
+    xLabel: t("stats.day"),
+    series,
+    stacked: true,
+    time: true,
+    format: (v) => String(Math.round(v)),
+  });
 }
