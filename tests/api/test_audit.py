@@ -231,5 +231,9 @@ def test_only_admins_read_it_and_nobody_edits_it(farm: Farm) -> None:
         assert not [p for p in paths if p.startswith("/api/audit/")]
         assert root.get("/api/audit", params={"limit": 0}).status_code == 422
         assert root.get("/api/audit", params={"from": "yesterday"}).status_code == 422
+        since = root.get("/api/audit", params={"from": "2000-01-01T00:00:00"})  # UTC
+        assert since.json()["total"] == 2
+        until = root.get("/api/audit", params={"to": "2000-01-01T00:00:00+02:00"})
+        assert until.json()["total"] == 0
     # The refused reads and writes above are not actions either.
     assert [r["action"] for r in farm.audit()] == ["token.create", "token.create"]

@@ -10,7 +10,7 @@ from datetime import datetime
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from pydantic import AwareDatetime, BaseModel, Field
+from pydantic import BaseModel, Field
 
 from kybercore.api.deps import ADMIN
 from kybercore.api.models import ERROR_RESPONSES
@@ -50,8 +50,10 @@ async def audit(
         str | None, Query(max_length=256, description="printer:a, or just the id a.")
     ] = None,
     action: Annotated[str | None, Query(max_length=64)] = None,
-    since: Annotated[AwareDatetime | None, Query(alias="from")] = None,
-    until: Annotated[AwareDatetime | None, Query(alias="to")] = None,
+    since: Annotated[
+        datetime | None, Query(alias="from", description="ISO-8601; UTC when no offset.")
+    ] = None,
+    until: Annotated[datetime | None, Query(alias="to", description="ISO-8601, excluded.")] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 50,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> dict[str, Any]:
