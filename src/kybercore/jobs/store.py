@@ -95,7 +95,9 @@ class JobStore:
         leaves it) or max attempts. The quantity cannot go below the copies done or in
         flight; the job's state follows its counters (more copies: queued again; more
         attempts allowed: no longer blocked)."""
-        _check_limits(quantity or 1, max_attempts or 1)
+        _check_limits(
+            1 if quantity is None else quantity, 1 if max_attempts is None else max_attempts
+        )
         return await self._write(
             lambda unit: jobs.change(
                 unit,
