@@ -77,6 +77,15 @@ def test_add_list_show_and_cancel_a_job(kybercore_server: KyberCoreServer, gcode
     }
 
 
+def test_a_job_no_printer_could_print_is_refused_with_why(
+    kybercore_server: KyberCoreServer, gcode: Path
+) -> None:
+    refused = run(kybercore_server.url, "jobs", "add", str(gcode), "--printer", "ghost")
+    assert refused.exit_code == 2, refused.output
+    assert "Error:" in refused.stderr
+    assert "  - ghost: " in refused.stderr  # the reason, one line under the error
+
+
 def test_hold_and_release_a_printer(kybercore_server: KyberCoreServer) -> None:
     url = kybercore_server.url
     held = run(url, "printers", "hold", "fleet-b", "--reason", "nozzle change")
@@ -117,10 +126,6 @@ def test_errors_are_one_line_and_an_exit_code(edge_server: StartEdge, gcode: Pat
     unknown = run(server.url, "jobs", "show", "4242", token=admin)
     assert unknown.exit_code == 1
     assert "Error:" in unknown.stderr
-    # An empty fleet can print nothing: refused as invalid input (exit 2).
-    nowhere = run(server.url, "jobs", "add", str(gcode), token=admin)
-    assert nowhere.exit_code == 2, nowhere.output
-    assert "Error:" in nowhere.stderr
     no_printer = run(server.url, "printers", "clear", "ghost", "--bad", token=admin)
     assert no_printer.exit_code == 1
     assert "ghost" in no_printer.stderr

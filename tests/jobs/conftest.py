@@ -61,7 +61,7 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str
         unavailable(str(server))
     url = server.create_database()
     yield url
-    server.drop_database(url)
+    server.recycle(url)
 
 
 @pytest.fixture

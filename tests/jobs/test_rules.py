@@ -19,8 +19,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kybercore.core.validation import PrinterFacts
-from kybercore.jobs.eligibility import accepts, normal_tags, problem
+from kybercore.core.validation import PrinterFacts, validate
+from kybercore.jobs.eligibility import normal_tags, problem
 from kybercore.jobs.models import Gate, Job, JobFile, Requirements
 from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, plan
 
@@ -242,6 +242,21 @@ def test_the_least_worn_printer_goes_first() -> None:
     assert [p for _, p in pairs(result)] == ["f", "d", "e", "c", "b", "a"]
 
 
+def test_the_wear_order_holds_across_kinds_of_printers_and_across_jobs() -> None:
+    # a and c judge alike (PLA), b and d too (PETG): the order interleaves the two kinds.
+    fleet = [printer("a"), printer("b", usage=1.0, material="PETG"),
+             printer("c", usage=2.0), printer("d", usage=3.0, material="PETG")]  # fmt: skip
+    any_file = {"slicer": "x"}
+    jobs = [job(1, meta=any_file), job(2, quantity=2, meta=any_file), job(3, meta=any_file)]
+    assert pairs(run(jobs, fleet)) == [(1, "a"), (2, "b"), (2, "c"), (3, "d")]
+
+
+def test_a_printer_one_file_refuses_stays_for_the_next_job() -> None:
+    fleet = [printer("pla"), printer("petg", usage=1.0, material="PETG")]
+    petg_file = job(1, meta={**META, "filament_type": "PETG"})
+    assert pairs(run([petg_file, job(2)], fleet)) == [(1, "petg"), (2, "pla")]
+
+
 def test_a_retried_job_goes_to_the_printers_that_ran_it_least() -> None:
     fleet = [printer("a"), printer("b", usage=500.0), printer("c", usage=900.0)]
     attempts = {1: {"a": 2, "b": 1}}
@@ -428,12 +443,53 @@ def queues(draw: st.DrawFn) -> list[Job]:
 
 
 def _eligible(j: Job, p: PrinterSnapshot) -> bool:
+    meta = j.file.meta or None  # empty: the parser found nothing
+    verdict = validate("start", p.facts, params={"filename": j.file.name}, file_meta=meta)
     return (
         p.free
         and j.requirements.printer in (None, p.id)
         and problem(j.requirements, p.facts, normal_tags(p.tags)) is None
-        and accepts(Memo().verdict(j.file, p.facts), j.allow_mismatch)
+        and not verdict.blocked
+        and (j.allow_mismatch or not verdict.warnings)
     )
+
+
+def _greedy(
+    jobs: list[Job],
+    fleet: list[PrinterSnapshot],
+    budget: int | None,
+    starting: set[str],
+    attempts: dict[int, dict[str, int]],
+) -> list[tuple[int, str]]:
+    """The rules of a round written the slow, obvious way."""
+    drawing = {p.id for p in fleet if p.heating or p.id in starting}
+    power = Counter(p.power_group for p in fleet if p.id in drawing)
+    order = sorted(
+        (j for j in jobs if j.state == "queued" and (j.not_before is None or j.not_before <= NOW)),
+        key=lambda j: (-j.priority, j.position, j.id),
+    )
+    taken: list[tuple[int, str]] = []
+    for j in order:
+
+        def rank(p: PrinterSnapshot, j: Job = j) -> tuple[Any, ...]:
+            used = p.last_used
+            wear = (p.usage_seconds, used is not None, used.timestamp() if used else 0.0, p.id)
+            return (attempts[j.id].get(p.id, 0), *wear) if j.failures else wear
+
+        for _ in range(j.left):
+            options = [
+                p for p in fleet
+                if p.id not in {t for _, t in taken} and _eligible(j, p)
+                and (budget is None or p.id in drawing or power[p.power_group] < budget)
+            ]  # fmt: skip
+            if not options:
+                break
+            best = min(options, key=rank)
+            taken.append((j.id, best.id))
+            if best.id not in drawing:
+                drawing.add(best.id)
+                power[best.power_group] += 1
+    return taken
 
 
 @given(
@@ -484,6 +540,9 @@ def test_a_round_keeps_every_rule(
             full = budget is not None and after[p.power_group] >= budget
             assert full, f"job {j.id} left {p.id} unused"
             assert p.id not in drawing, f"job {j.id} left {p.id} unused (it draws no more)"
+    # Exactly what a plain greedy pass over every printer picks (the planner's kinds, heaps
+    # and memo are only there to be fast).
+    assert pairs(result) == _greedy(jobs, fleet, budget, starting, attempts)
     # Deterministic, whatever the order of the inputs.
     rng = random.Random(seed)
     shuffled_fleet, shuffled_jobs = fleet[:], jobs[:]
@@ -497,6 +556,7 @@ def test_a_round_keeps_every_rule(
 PURE_MODULES = ("rules", "planner", "eligibility", "why", "reasons", "heating")
 PURE_IMPORTS = (
     "__future__", "collections", "collections.abc", "dataclasses", "datetime", "typing", "re",
+    "heapq", "itertools",
     "kybercore.core.validation", "kybercore.core.messages", "kybercore.core.numbers",
     "kybercore.jobs.models", "kybercore.registry.models",
     *(f"kybercore.jobs.{name}" for name in PURE_MODULES),

@@ -244,7 +244,7 @@ async def test_more_attempts_allowed_unblock_a_job_and_fewer_block_it(store: Job
     attempt = await reserved(store, job.id, "p1")
     await store.finish(attempt.id, "failed", reason="clog")
     blocked = await store.update_job(job.id, max_attempts=1, user="ana")
-    assert (blocked.state, blocked.reason) == ("blocked", "1 failed attempts (at most 1)")
+    assert (blocked.state, blocked.reason) == ("blocked", "failed attempts: 1 of 1 allowed")
     assert (await store.update_job(job.id, max_attempts=2, user="ana")).state == "queued"
 
 
@@ -298,9 +298,8 @@ async def test_every_change_is_in_the_history_and_told_after_commit(database: As
     told: list[tuple[str, dict[str, Any]]] = []
     store = JobStore(database, on_change=lambda kind, payload: told.append((kind, payload)))
     job = await store.create_job(new_job(), "ana")
-    assert [(kind, p["event"], p["job"].id) for kind, p in told] == [
-        ("job", "job_created", job.id)
-    ]
+    created = [(kind, p["event"], p["job"].id) for kind, p in told]
+    assert created == [("job", "job_created", job.id)]
     told.clear()
     attempt = await reserved(store, job.id, "p1")
     assert sorted(kind for kind, _ in told) == ["attempt", "gate", "job"]

@@ -17,7 +17,7 @@ from sqlalchemy import text
 from sqlalchemy.engine import Connection
 from sqlalchemy.ext.asyncio import AsyncEngine
 
-from kybercore.db.transaction import WRITE_OPTION
+from kybercore.db.transaction import transaction
 from kybercore.errors import ConfigError
 
 MIGRATIONS: Final = Path(__file__).resolve().parent / "migrations"
@@ -42,14 +42,14 @@ def head_revision() -> str:
 
 
 async def upgrade(engine: AsyncEngine, shown: str) -> None:
-    """Migrate the database to the newest revision, in one transaction.
+    """Migrate the database to the newest revision, in one write transaction (retried
+    like any other when another process holds the database).
 
     ``shown`` names the database in messages (its URL without the password). A database
     at a revision this KyberCore does not know was written by a newer one: that raises
     :class:`ConfigError` and changes nothing.
     """
-    async with engine.execution_options(**{WRITE_OPTION: True}).begin() as conn:
-        await conn.run_sync(_upgrade, shown)
+    await transaction(engine, lambda conn: conn.run_sync(_upgrade, shown))
 
 
 def _upgrade(conn: Connection, shown: str) -> None:

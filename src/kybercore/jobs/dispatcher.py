@@ -101,7 +101,6 @@ class Dispatcher:
         self._starts_seen: dict[str, tuple[str, asyncio.Event, bool]] = {}
         """Printer -> (upload name, set once print_stats shows it, whether it showed that
         name before the start)."""
-        self._stopping = False
         self.memo = Memo()
         """Validation verdicts kept between rounds (the planner's cache)."""
         self.rounds = 0
@@ -118,7 +117,6 @@ class Dispatcher:
     async def stop(self) -> None:
         """Stop planning and abandon the starts in progress (the next start of KyberCore
         settles them from the printers, as after a crash)."""
-        self._stopping = True
         if self._stop_listening is not None:
             self._stop_listening()
             self._stop_listening = None
@@ -134,7 +132,8 @@ class Dispatcher:
         self._wake.set()
 
     async def abandon(self, attempt_id: int) -> None:
-        """Stop starting ``attempt_id`` (its job was cancelled); no-op when not starting."""
+        """Stop starting ``attempt_id`` (its job was cancelled); no-op when not starting.
+        The attempt stays as it was: the caller ends it."""
         printer = self._running.get(attempt_id)
         task = self._runs.get(printer) if printer is not None else None
         if task is not None:
@@ -246,13 +245,15 @@ class Dispatcher:
         self._runs[attempt.printer] = task
 
     async def _run(self, attempt: Attempt, job: Job) -> None:
+        abandoned = False
         try:
             attempt = await self._upload_and_start(attempt, job)
         except ActionRejected as exc:
-            # The store refused a step: the job was cancelled (or the attempt ended)
-            # meanwhile. Whoever did that owns what happens next.
+            # The store refused a step: the attempt ended meanwhile. Whoever ended it
+            # owns what happens next.
             log.info("%s: attempt %d stopped: %s", attempt.printer, attempt.id, exc)
         except asyncio.CancelledError:
+            abandoned = True  # stop() or abandon(): the caller settles the attempt
             raise
         except Exception as exc:
             log.exception("%s: starting attempt %d failed", attempt.printer, attempt.id)
@@ -261,7 +262,7 @@ class Dispatcher:
             self._runs.pop(attempt.printer, None)
             self._running.pop(attempt.id, None)
             self._starts_seen.pop(attempt.printer, None)
-            if not self._stopping:
+            if not abandoned:
                 self._tracker.follow(attempt)
                 self.wake()
 

@@ -85,32 +85,45 @@ class Memo:
 
     def __init__(self, limit: int = 200_000) -> None:
         self._limit = limit
-        self._verdicts: dict[tuple[str, str, FactsKey], tuple[Mapping[str, Any], Verdict]] = {}
+        self._verdicts: dict[tuple[str, str, FactsKey], _Judged] = {}
 
     def verdict(self, file: JobFile, facts: PrinterFacts, key: FactsKey | None = None) -> Verdict:
         """:func:`validate` of starting ``file`` on the printer with ``facts``."""
+        return self._judged(file, facts, key).verdict
+
+    def warnings(
+        self, file: JobFile, facts: PrinterFacts, key: FactsKey, allow_mismatch: bool
+    ) -> tuple[str, ...] | None:
+        """``code: message`` of each warning of a start that may be dispatched, or None
+        when it may not: something blocks it, or it warns and the job allows no mismatch."""
+        judged = self._judged(file, facts, key)
+        if judged.blocked or (judged.warnings and not allow_mismatch):
+            return None
+        return judged.warnings
+
+    def _judged(self, file: JobFile, facts: PrinterFacts, key: FactsKey | None) -> _Judged:
         memo_key = (file.sha256, file.name, facts_key(facts) if key is None else key)
         hit = self._verdicts.get(memo_key)
-        if hit is not None and (hit[0] is file.meta or hit[0] == file.meta):
-            return hit[1]
+        if hit is not None and (hit.meta is file.meta or hit.meta == file.meta):
+            return hit
         # An empty metadata dict means the parser found nothing: a file without metadata.
         verdict = validate(
             "start", facts, params={"filename": file.name}, file_meta=file.meta or None
         )
         if len(self._verdicts) >= self._limit:
             self._verdicts.clear()  # crude, but a round never needs more than it refills
-        self._verdicts[memo_key] = (file.meta, verdict)
-        return verdict
+        warnings = tuple(f"{r.code}: {r.en}" for r in verdict.warnings)
+        judged = _Judged(file.meta, verdict, verdict.blocked, warnings)
+        self._verdicts[memo_key] = judged
+        return judged
 
 
-def accepts(verdict: Verdict, allow_mismatch: bool) -> bool:
-    """Whether a start with this verdict may be dispatched."""
-    return not verdict.blocked and (allow_mismatch or not verdict.warnings)
-
-
-def warning_texts(verdict: Verdict) -> tuple[str, ...]:
-    """The warnings of an accepted verdict, for :attr:`Assignment.warnings`."""
-    return tuple(f"{r.code}: {r.en}" for r in verdict.warnings)
+@dataclass(frozen=True)
+class _Judged:
+    meta: Mapping[str, Any]
+    verdict: Verdict
+    blocked: bool
+    warnings: tuple[str, ...]
 
 
 def normal_model(name: str) -> str:

@@ -8,31 +8,30 @@ time in the usage window, then the least recently used, then the id. For a job t
 before, printers that ran it fewer times go first. A power group may have at most K
 printers heating at once, starts in progress included.
 
-Speed: a round over 5,000 printers and 10,000 jobs stays within milliseconds because
-printers that are interchangeable for every job (same facts and tags) are judged once as a
-kind, validation verdicts are kept in a :class:`Memo` between rounds, a kind is only
-validated when its best printer would be picked, and the round stops once no printer can
-take anything.
+Speed (``bench/dispatch.py``: 5,000 printers, 10,000 jobs): free printers that validation
+judges alike (same facts) form a kind, validated once per file; the kinds sit in a heap by
+their least-worn printer, shared by the jobs with the same requirements; a kind is validated
+only when its best printer would win; verdicts are kept in a :class:`Memo` between rounds;
+and the round stops once no printer can take anything.
 """
 
 from __future__ import annotations
 
-from collections import deque
+import heapq
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime
+from itertools import pairwise
 
 from kybercore.core.validation import PrinterFacts
 from kybercore.jobs.eligibility import (
     FactsKey,
     Memo,
     PrinterSnapshot,
-    accepts,
     clock,
     facts_key,
     normal_tags,
     problem,
-    warning_texts,
 )
 from kybercore.jobs.models import Job, Requirements
 from kybercore.jobs.reasons import QUEUE, WhyLine, line
@@ -63,6 +62,17 @@ def job_order(job: Job) -> tuple[int, float, int]:
     return (-job.priority, job.position, job.id)
 
 
+def in_order(jobs: Sequence[Job]) -> bool:
+    """Whether ``jobs`` are in queue order already (checked without building keys)."""
+    for a, b in pairwise(jobs):
+        if a.priority != b.priority:
+            if a.priority < b.priority:
+                return False
+        elif a.position > b.position or (a.position == b.position and a.id > b.id):
+            return False
+    return True
+
+
 def plan(
     jobs: Sequence[Job],
     printers: Sequence[PrinterSnapshot],
@@ -83,10 +93,12 @@ def plan(
     that job there; used for jobs with failures. ``memo``: keep one between rounds to
     reuse verdicts.
     """
-    queued = sorted((j for j in jobs if j.state == "queued" and j.left > 0), key=job_order)
+    queued = [j for j in jobs if j.state == "queued" and j.left > 0]
+    if not in_order(queued):  # the store lists them in order; sorting anyway costs more
+        queued.sort(key=job_order)
     if paused:
-        held = [line(QUEUE, "queue_paused")]
-        return Plan([], {j.id: held for j in queued})
+        held = line(QUEUE, "queue_paused")
+        return Plan([], {j.id: [held] for j in queued})
     waiting: dict[int, list[WhyLine]] = {}
     ready: list[Job] = []
     for job in queued:
@@ -103,15 +115,22 @@ def plan(
     return Plan(state.assignments, waiting)
 
 
+Tagged = tuple[int, PrinterSnapshot, frozenset[str]]
+"""A free printer in a kind: its wear rank (0 = least worn), itself, its tags."""
+
+
 @dataclass(eq=False)
 class Kind:
-    """Free printers that every job judges alike: same facts and tags. Its queue holds
-    ``(rank, printer)`` best first; printers taken or shut out by power leave it lazily."""
+    """Free printers that validation judges alike (same :func:`facts_key`), least worn
+    first. A job that needs tags sees only the printers that have them."""
 
     facts: PrinterFacts
     key: FactsKey
-    tags: frozenset[str]
-    queue: deque[tuple[int, PrinterSnapshot]] = field(default_factory=deque)
+    printers: list[Tagged] = field(default_factory=list)
+    cursors: dict[frozenset[str], int] = field(default_factory=dict)
+    """Required tags -> index of the first printer that may still take a job needing them.
+    Printers only ever leave a round (taken, or their group full), so cursors only move
+    forward and a round walks each list at most once per set of tags."""
 
 
 class Round:
@@ -127,8 +146,7 @@ class Round:
         self.budget = budget
         self.memo = memo
         self.assignments: list[Assignment] = []
-        self.taken: dict[str, int] = {}
-        """Printer id -> the job it got this round."""
+        self.taken: set[str] = set()
         self.power: dict[str, int] = {}
         """Power group -> printers heating or starting, this round's starts included."""
         starting = set(starting)
@@ -140,27 +158,29 @@ class Round:
                 self.power[p.power_group] = self.power.get(p.power_group, 0) + 1
         free = sorted((p for p in printers if p.free), key=_wear)
         self.kinds: list[Kind] = []
-        self.free_by_id: dict[str, tuple[PrinterSnapshot, Kind]] = {}
+        self.free_by_id: dict[str, tuple[Tagged, Kind]] = {}
         self.idle_in: dict[str, int] = {}
         """Power group -> free printers not taken that would start heating."""
-        by_key: dict[tuple[FactsKey, frozenset[str]], Kind] = {}
+        by_key: dict[FactsKey, Kind] = {}
         tag_sets: dict[tuple[str, ...], frozenset[str]] = {}
         for rank, p in enumerate(free):
             tags = tag_sets.get(p.tags)
             if tags is None:
                 tags = tag_sets[p.tags] = normal_tags(p.tags)
             key = facts_key(p.facts)
-            kind = by_key.get((key, tags))
+            kind = by_key.get(key)
             if kind is None:
-                kind = by_key[(key, tags)] = Kind(p.facts, key, tags)
+                kind = by_key[key] = Kind(p.facts, key)
                 self.kinds.append(kind)
-            kind.queue.append((rank, p))
-            self.free_by_id[p.id] = (p, kind)
+            entry = (rank, p, tags)
+            kind.printers.append(entry)
+            self.free_by_id[p.id] = (entry, kind)
             if p.id not in self.drawing:
                 self.idle_in[p.power_group] = self.idle_in.get(p.power_group, 0) + 1
         self.usable = len(free) - sum(n for g, n in self.idle_in.items() if self.full(g))
         """Free printers left that could still take a job this round."""
-        self._candidates: dict[Requirements, list[Kind]] = {}
+        self._candidates: dict[Requirements, tuple[list[Kind], frozenset[str]]] = {}
+        self._heaps: dict[Requirements, list[tuple[int, int, Kind]]] = {}
         self.by_material: dict[str, list[Kind]] = {}
         for kind in self.kinds:
             material = (kind.facts.material or "").strip().casefold()
@@ -174,18 +194,24 @@ class Round:
         """Whether ``p`` (free) can still be given a job this round."""
         return p.id not in self.taken and (p.id in self.drawing or not self.full(p.power_group))
 
-    def head(self, kind: Kind) -> tuple[int, PrinterSnapshot] | None:
-        """The best printer of ``kind`` still usable, dropping the ones that no longer are."""
-        queue = kind.queue
-        while queue:
-            if self.usable_printer(queue[0][1]):
-                return queue[0]
-            queue.popleft()  # taken, or its group is full: it will not come back this round
-        return None
+    def head(self, kind: Kind, tags: frozenset[str]) -> Tagged | None:
+        """The least-worn printer of ``kind`` with ``tags`` that may still take a job."""
+        printers, i = kind.printers, kind.cursors.get(tags, 0)
+        taken, drawing, power, budget = self.taken, self.drawing, self.power, self.budget
+        while i < len(printers):
+            _, p, have = printers[i]
+            if (
+                tags <= have
+                and p.id not in taken
+                and (budget is None or p.id in drawing or power.get(p.power_group, 0) < budget)
+            ):  # the inside of usable_printer: this loop is the round's hottest
+                break
+            i += 1
+        kind.cursors[tags] = i
+        return printers[i] if i < len(printers) else None
 
-    def candidates(self, req: Requirements) -> list[Kind]:
-        """Kinds whose printers meet ``req`` (the pinned printer aside); a new
-        list each time (:meth:`_best` drops refused kinds from it)."""
+    def candidates(self, req: Requirements) -> tuple[list[Kind], frozenset[str]]:
+        """Kinds whose facts meet ``req``, and the tags a printer of them must have."""
         found = self._candidates.get(req)
         if found is None:
             kinds = (
@@ -193,75 +219,92 @@ class Round:
                 if req.material
                 else self.kinds
             )
-            found = self._candidates[req] = [
-                k for k in kinds if problem(req, k.facts, k.tags) is None
-            ]
-        return list(found)
+            untagged = replace(req, tags=(), printer=None)
+            found = self._candidates[req] = (
+                [k for k in kinds if problem(untagged, k.facts, frozenset()) is None],
+                normal_tags(req.tags),
+            )
+        return found
 
     def assign(self, job: Job, attempts: Mapping[str, int] | None) -> None:
-        """Give ``job`` up to ``job.left`` free printers, best first."""
-        judged: dict[int, tuple[str, ...] | None] = {}  # id(kind) -> warnings; None: refused
+        """Give ``job`` up to ``job.left`` free printers, least worn first."""
+        file, allow = job.file, job.allow_mismatch
 
-        def accepted(kind: Kind) -> bool:
-            if id(kind) not in judged:
-                verdict = self.memo.verdict(job.file, kind.facts, kind.key)
-                ok = accepts(verdict, job.allow_mismatch)
-                judged[id(kind)] = warning_texts(verdict) if ok else None
-            return judged[id(kind)] is not None
+        def judge(kind: Kind) -> tuple[str, ...] | None:
+            """The warnings of starting the job on ``kind`` (None: it may not start)."""
+            return self.memo.warnings(file, kind.facts, kind.key, allow)
 
         pinned = job.requirements.printer
         if pinned:  # one printer at most: it takes one job per round
-            p, kind = self.free_by_id.get(pinned, (None, None))
+            entry, kind = self.free_by_id.get(pinned, (None, None))
             if (
-                p is not None and kind is not None and self.usable_printer(p)
-                and problem(job.requirements, kind.facts, kind.tags) is None and accepted(kind)
+                entry is not None and kind is not None and self.usable_printer(entry[1])
+                and problem(job.requirements, kind.facts, entry[2]) is None
+                and (warnings := judge(kind)) is not None
             ):  # fmt: skip
-                self._take(job, p, judged[id(kind)] or ())
+                self._take(job, entry[1], warnings)
             return
-        kinds = self.candidates(job.requirements)
-        for _ in range(job.left):
-            choice = (
-                self._retry_choice(kinds, attempts, accepted)
-                if attempts
-                else self._best(kinds, accepted)
-            )
-            if choice is None:
+        kinds, tags = self.candidates(job.requirements)
+        if attempts:
+            self._assign_retried(job, kinds, tags, attempts, judge)
+            return
+        # The kinds by their least-worn printer; a kind is validated only when that printer
+        # would win, so a job that fits it costs one verdict.
+        heap = self._heap(job.requirements, kinds, tags)
+        refused: list[tuple[int, int, Kind]] = []
+        need = job.left
+        while need > 0 and heap:
+            rank, i, kind = heap[0]
+            head = self.head(kind, tags)
+            if head is None:  # no printer of it left for these tags, this round
+                heapq.heappop(heap)
+            elif head[0] != rank:  # its printer went to an earlier job: requeue the kind
+                heapq.heapreplace(heap, (head[0], i, kind))
+            elif (warnings := judge(kind)) is None:
+                refused.append(heapq.heappop(heap))
+            else:
+                self._take(job, head[1], warnings)
+                need -= 1
+        for item in refused:  # refused by this job's file only: the next job may take it
+            heapq.heappush(heap, item)
+
+    def _heap(
+        self, req: Requirements, kinds: list[Kind], tags: frozenset[str]
+    ) -> list[tuple[int, int, Kind]]:
+        """The kinds meeting ``req`` by their least-worn printer, shared by the jobs with
+        the same requirements (entries whose printer was taken are refreshed lazily)."""
+        heap = self._heaps.get(req)
+        if heap is None:
+            heads = ((self.head(kind, tags), i, kind) for i, kind in enumerate(kinds))
+            heap = self._heaps[req] = [(h[0], i, kind) for h, i, kind in heads if h is not None]
+            heapq.heapify(heap)
+        return heap
+
+    def _assign_retried(
+        self,
+        job: Job,
+        kinds: list[Kind],
+        tags: frozenset[str],
+        attempts: Mapping[str, int],
+        judge: Callable[[Kind], tuple[str, ...] | None],
+    ) -> None:
+        """A job that failed before: the printers that ran it the fewest times first, then
+        the least worn (rare, so every accepted printer is looked at)."""
+        options = sorted(
+            (attempts.get(p.id, 0), rank, p, warnings)
+            for kind in kinds if (warnings := judge(kind)) is not None
+            for rank, p, have in kind.printers[kind.cursors.get(tags, 0):] if tags <= have
+        )  # fmt: skip
+        need = job.left
+        for _, _, p, warnings in options:
+            if need == 0:
                 return
-            self._take(job, choice[0], judged[id(choice[1])] or ())
-
-    def _best(
-        self, kinds: list[Kind], accepted: Callable[[Kind], bool]
-    ) -> tuple[PrinterSnapshot, Kind] | None:
-        """The best usable printer among ``kinds``. A kind is validated only when its best
-        printer would win, so a job that fits the least-worn printer costs one verdict;
-        refused kinds leave ``kinds``."""
-        while True:
-            best: tuple[int, PrinterSnapshot, Kind] | None = None
-            for kind in kinds:
-                head = self.head(kind)
-                if head is not None and (best is None or head[0] < best[0]):
-                    best = (head[0], head[1], kind)
-            if best is None:
-                return None
-            if accepted(best[2]):
-                return best[1], best[2]
-            kinds.remove(best[2])
-
-    def _retry_choice(
-        self, kinds: list[Kind], attempts: Mapping[str, int], accepted: Callable[[Kind], bool]
-    ) -> tuple[PrinterSnapshot, Kind] | None:
-        """For a job that failed before: the printer that ran it the fewest times, then the
-        least worn (rare, so every accepted printer is looked at)."""
-        options = [
-            (attempts.get(p.id, 0), rank, p, kind)
-            for kind in kinds if accepted(kind)
-            for rank, p in kind.queue if self.usable_printer(p)
-        ]  # fmt: skip
-        best = min(options, key=lambda o: o[:2], default=None)
-        return None if best is None else (best[2], best[3])
+            if self.usable_printer(p):  # taken, or the heating budget filled up on the way
+                self._take(job, p, warnings)
+                need -= 1
 
     def _take(self, job: Job, p: PrinterSnapshot, warnings: tuple[str, ...]) -> None:
-        self.taken[p.id] = job.id
+        self.taken.add(p.id)
         self.assignments.append(Assignment(job.id, p.id, warnings))
         self.usable -= 1
         if p.id in self.drawing:

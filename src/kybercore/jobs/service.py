@@ -159,23 +159,33 @@ class QueueService:
                 code="confirmation_required",
                 reasons=[_in_flight(a) for a in live],
             )
-        job, cancelled = await self.store.cancel_job(job_id, user, reason=f"cancelled by {user}")
-        for attempt in cancelled:
-            await self.dispatcher.abandon(attempt.id)
-            await self._cancel_print(attempt)
+        job, live = await self.store.cancel_job(job_id, user, reason=f"cancelled by {user}")
+        for attempt in live:
+            await self._cancel_attempt(attempt, user)
         return job
 
-    async def _cancel_print(self, attempt: Attempt) -> None:
-        """Cancel ``attempt``'s print on its printer, if that printer is printing it."""
+    async def _cancel_attempt(self, attempt: Attempt, user: str) -> None:
+        """Stop a live attempt of a cancelled job: a print running is cancelled on the
+        printer (the tracker then ends the attempt as the printer says); one still
+        starting ends here."""
+        await self.dispatcher.abandon(attempt.id)
+        attempt = await self.store.attempt(attempt.id)
+        if not attempt.live:
+            return
         try:
             printer = self.fleet.sessions.get(attempt.printer)
             stats = printer.live.status.get("print_stats", {})
-            if stats.get("filename") != attempt.upload_name:
-                return
-            if stats.get("state") in ("printing", "paused"):
+            if stats.get("filename") == attempt.upload_name and stats.get("state") in (
+                "printing",
+                "paused",
+            ):
                 await self.fleet.client(attempt.printer).print_cancel()
         except KyberCoreError as exc:
             log.warning("%s: could not cancel the job's print: %s", attempt.printer, exc)
+        if attempt.state not in ("printing", "paused"):
+            reason = f"Job cancelled by {user} before the print started."
+            ended = await self.store.finish(attempt.id, "cancelled", reason=reason)
+            self.tracker.follow(ended)
 
     # -- the queue ---------------------------------------------------------------------
 

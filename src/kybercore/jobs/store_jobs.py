@@ -181,7 +181,7 @@ async def update_job_row(
             reason = (
                 blocked_reason
                 or fallback
-                or (f"{merged['failures']} failed attempts (at most {merged['max_attempts']})")
+                or f"failed attempts: {merged['failures']} of {merged['max_attempts']} allowed"
             )
             state = "blocked"
         else:

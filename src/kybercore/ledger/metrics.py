@@ -2,7 +2,8 @@
 
 A scrape reads the published printer views (the very ones ``GET /api/printers`` answers
 with), the ledger's job counts and queue figures (kept up to date as they are written and
-polled), and a few counters: it never asks a printer or the database anything.
+polled), and a few counters: it never asks a printer or the database anything. They are
+copied on the event loop (:class:`Snapshot`) and formatted in a worker thread.
 """
 
 from __future__ import annotations
@@ -12,13 +13,11 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
-
-if TYPE_CHECKING:
-    from kybercore.ledger.service import LedgerService
 
 HEATERS = ("extruder", "bed")
 """The heaters of a printer view (``bed`` is Klipper's ``heater_bed``)."""
@@ -46,23 +45,41 @@ class QueueFigures:
         return cls(jobs, copies_left, when)
 
 
-class FleetCollector(Collector):
-    """Builds every KyberCore metric at scrape time from the ledger's in-memory state."""
+@dataclass(frozen=True)
+class Snapshot:
+    """What a scrape shows, copied on the event loop: plain data a worker thread may read
+    while the loop goes on (formatting 1,000 printers takes over 100 ms)."""
 
-    def __init__(self, ledger: LedgerService) -> None:
-        self._ledger = ledger
+    views: list[dict[str, Any]]
+    """The published printer views (never modified once published)."""
+    states: dict[str, str]
+    jobs: dict[tuple[str, str], int]
+    queue: QueueFigures
+    reconnects: dict[str, int]
+    browsers: int
+    loop_lag: float
+
+
+def exposition(snapshot: Snapshot) -> bytes:
+    """The snapshot in Prometheus' text format."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Collector(snapshot))
+    return generate_latest(registry)
+
+
+class _Collector(Collector):
+    def __init__(self, snapshot: Snapshot) -> None:
+        self._snapshot = snapshot
 
     def collect(self) -> Iterator[Metric]:
-        """The metrics, as of now."""
-        ledger = self._ledger
-        views = ledger.fleet.views()
-        yield from _printer_metrics(views)
+        snapshot = self._snapshot
+        yield from _printer_metrics(snapshot.views)
         states = GaugeMetricFamily(
             "kybercore_printer_state",
             "1 for the printer's state in the ledger's timeline",
             labels=["printer", "state"],
         )
-        for printer, state in sorted(ledger.timeline.current.items()):
+        for printer, state in sorted(snapshot.states.items()):
             states.add_metric([printer, state], 1)
         yield states
         jobs = CounterMetricFamily(
@@ -70,27 +87,27 @@ class FleetCollector(Collector):
             "Printed jobs in the ledger, by printer and Moonraker outcome",
             labels=["printer", "outcome"],
         )
-        for (printer, outcome), count in sorted(ledger.job_counts.items()):
+        for (printer, outcome), count in sorted(snapshot.jobs.items()):
             jobs.add_metric([printer, outcome], count)
         yield jobs
-        yield from _queue_metrics(ledger.queue)
+        yield from _queue_metrics(snapshot.queue)
         reconnects = CounterMetricFamily(
             "kybercore_moonraker_reconnects",
             "Times a printer's Moonraker session came back online after being online",
             labels=["printer"],
         )
-        for printer, count in sorted(ledger.reconnects.items()):
+        for printer, count in sorted(snapshot.reconnects.items()):
             reconnects.add_metric([printer], count)
         yield reconnects
         yield GaugeMetricFamily(
             "kybercore_browser_clients",
             "Browser WebSockets connected to /ws",
-            value=ledger.fleet.hub.client_count,
+            value=snapshot.browsers,
         )
         yield GaugeMetricFamily(
             "kybercore_event_loop_lag_seconds",
             "How late the event loop last ran a timer (0.5 s period)",
-            value=ledger.loop_lag,
+            value=snapshot.loop_lag,
         )
 
 

@@ -20,7 +20,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from prometheus_client import CollectorRegistry
 from sqlalchemy import func, select
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.ext.asyncio import AsyncEngine
@@ -37,7 +36,7 @@ from kybercore.ledger.history import (
     jobs_of_notification,
     read_instance,
 )
-from kybercore.ledger.metrics import FleetCollector, QueueFigures
+from kybercore.ledger.metrics import QueueFigures, Snapshot
 from kybercore.ledger.timeline import Timeline, printer_state
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
@@ -93,8 +92,6 @@ class LedgerService:
         self.loop_lag = 0.0
         self.backfill_requests = 0
         """``/server/history/list`` requests made (a test counts them)."""
-        self.metrics = CollectorRegistry(auto_describe=False)
-        self.metrics.register(FleetCollector(self))
         self._page = page
         self._tick = tick
         self._queue_poll = queue_poll
@@ -145,10 +142,23 @@ class LedgerService:
         self._sweep()
         await self.timeline.flush()
 
+    def metrics(self) -> Snapshot:
+        """What ``/metrics`` shows now (a copy: format it anywhere)."""
+        return Snapshot(
+            views=self.fleet.views(),
+            states=dict(self.timeline.current),
+            jobs=self.job_counts,  # replaced, never changed in place
+            queue=self.queue,
+            reconnects=dict(self.reconnects),
+            browsers=self.fleet.hub.client_count,
+            loop_lag=self.loop_lag,
+        )
+
     def caught_up(self, printer_id: str) -> bool:
         """Whether the printer's history was read since it last connected."""
         feed = self._feeds.get(printer_id)
-        return feed is not None and feed.catch_up is not None and feed.catch_up.done()
+        task = None if feed is None else feed.catch_up
+        return task is not None and task.done() and not task.cancelled()
 
     # -- what the sessions tell ----------------------------------------------------------
 
