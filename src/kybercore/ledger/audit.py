@@ -28,6 +28,7 @@ from sqlalchemy import (
     Column,
     Index,
     Integer,
+    MetaData,
     String,
     Table,
     func,
@@ -38,7 +39,9 @@ from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 from sqlalchemy.sql.elements import ColumnElement
 
 from kybercore.db import UTCDateTime, transaction
-from kybercore.ledger.tables import metadata
+
+metadata = MetaData()
+"""The audit table alone: migration ``0003_audit`` creates it."""
 
 audit = Table(
     "audit",
