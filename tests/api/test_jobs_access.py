@@ -96,11 +96,6 @@ def test_what_the_queue_cannot_take_is_refused_in_words(edge_server: StartEdge) 
         escaping = client.post("/api/jobs", json={"printer": "x", "path": "../printer.cfg"})
         assert escaping.status_code == 422, escaping.text
 
-        # An empty fleet: no printer could ever print anything.
-        nowhere = client.post("/api/jobs", files={"file": ("a.gcode", GCODE)})
-        assert nowhere.status_code == 422, nowhere.text
-        assert nowhere.json()["error"]["code"] == "never_printable"
-
         bad_clear = client.post("/api/printers/x/clear", json={"verdict": "maybe"})
         assert bad_clear.status_code == 422, bad_clear.text
         empty_hold = client.post("/api/printers/x/hold", json={"reason": "  "})

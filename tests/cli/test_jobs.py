@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,8 +15,8 @@ from typer.testing import CliRunner
 
 from kybercore.api.auth import TokenStore, tokens_path_for
 from kybercore.cli.main import app
+from kybercore.registry.store import write_printers
 from kybercore.sim.stack import free_port
-from tests.api.conftest import StartEdge
 from tests.helpers import KyberCoreServer, travel_gcode
 
 pytestmark = pytest.mark.integration
@@ -30,6 +31,18 @@ def run(url: str, *args: str, stdin: str | None = None, token: str = "") -> Resu
     assert "Traceback" not in result.output
     assert result.exception is None or isinstance(result.exception, SystemExit)
     return result
+
+
+@pytest.fixture
+def guarded_server(tmp_path: Path) -> Iterator[tuple[KyberCoreServer, str]]:
+    """A `kybercore serve` of an empty fleet that asks for tokens: (server, admin token)."""
+    printers = tmp_path / "printers.json"
+    write_printers(printers, [])
+    _, admin = TokenStore(tokens_path_for(printers)).create("root", "admin")
+    server = KyberCoreServer(printers, free_port())
+    server.start()
+    yield server, admin
+    server.stop()
 
 
 @pytest.fixture
@@ -77,6 +90,15 @@ def test_add_list_show_and_cancel_a_job(kybercore_server: KyberCoreServer, gcode
     }
 
 
+def test_a_job_no_printer_could_print_is_refused_with_why(
+    kybercore_server: KyberCoreServer, gcode: Path
+) -> None:
+    refused = run(kybercore_server.url, "jobs", "add", str(gcode), "--printer", "ghost")
+    assert refused.exit_code == 2, refused.output
+    assert "Error:" in refused.stderr
+    assert "  - ghost: " in refused.stderr  # the reason, one line under the error
+
+
 def test_hold_and_release_a_printer(kybercore_server: KyberCoreServer) -> None:
     url = kybercore_server.url
     held = run(url, "printers", "hold", "fleet-b", "--reason", "nozzle change")
@@ -98,13 +120,15 @@ def test_hold_and_release_a_printer(kybercore_server: KyberCoreServer) -> None:
     assert "--good or --bad" in needs_verdict.stderr
 
 
-def test_errors_are_one_line_and_an_exit_code(edge_server: StartEdge, gcode: Path) -> None:
+def test_errors_are_one_line_and_an_exit_code(
+    guarded_server: tuple[KyberCoreServer, str],
+) -> None:
     down = f"http://127.0.0.1:{free_port()}"
     unreachable = run(down, "jobs", "list")
     assert unreachable.exit_code == 1
     assert f"Cannot reach KyberCore at {down}" in unreachable.stderr
 
-    server, admin = edge_server(tokens=True)
+    server, admin = guarded_server
     anonymous = run(server.url, "jobs", "list")
     assert anonymous.exit_code == 1
     assert "token" in anonymous.stderr.lower()
@@ -117,10 +141,6 @@ def test_errors_are_one_line_and_an_exit_code(edge_server: StartEdge, gcode: Pat
     unknown = run(server.url, "jobs", "show", "4242", token=admin)
     assert unknown.exit_code == 1
     assert "Error:" in unknown.stderr
-    # An empty fleet can print nothing: refused as invalid input (exit 2).
-    nowhere = run(server.url, "jobs", "add", str(gcode), token=admin)
-    assert nowhere.exit_code == 2, nowhere.output
-    assert "Error:" in nowhere.stderr
     no_printer = run(server.url, "printers", "clear", "ghost", "--bad", token=admin)
     assert no_printer.exit_code == 1
     assert "ghost" in no_printer.stderr

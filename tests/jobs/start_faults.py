@@ -113,7 +113,8 @@ class StartSwallowingProxy:
             content=await request.body(),
         )
         body = answer.content
-        if path == "/server/files/upload" and self.scenario == "queued_upload" and answer.is_success:
+        queued = self.scenario == "queued_upload" and answer.is_success
+        if path == "/server/files/upload" and queued:
             result = json.loads(body)
             result.update(print_started=False, print_queued=True)
             body = json.dumps(result).encode()

@@ -64,7 +64,8 @@ async def test_at_most_three_of_twelve_printers_heat_at_once(
             )
 
             async def waiting_for_power() -> bool:
-                return any(line.code == "waiting_for_power" for line in await live.queue.why(job.id))
+                lines = await live.queue.why(job.id)
+                return any(line.code == "waiting_for_power" for line in lines)
 
             # While the budget is full, the job says so.
             await wait_for(waiting_for_power, ALL_DONE_TIMEOUT, "'waiting for power' in why")

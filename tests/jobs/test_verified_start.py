@@ -69,7 +69,9 @@ async def test_a_start_accepted_but_never_seen_is_retried_on_another_printer(
     proxy = await standin(behind_standins, scenario)  # type: ignore[misc]
     # Ids rank the printers when nothing else does: "a-refuses" is tried first.
     printers = [
-        printer_config(behind_standins, "a-refuses").model_copy(update={"moonraker_url": proxy.url}),
+        printer_config(behind_standins, "a-refuses").model_copy(
+            update={"moonraker_url": proxy.url}
+        ),
         printer_config(good_printer, "b-starts"),
     ]
     async with live_queue(
@@ -135,7 +137,8 @@ async def test_after_max_attempts_of_refused_starts_the_job_is_blocked_with_the_
         ]
         stored = await live.job(job.id)
         assert stored.failures == 2
-        assert stored.reason and attempts[-1].reason in stored.reason
+        assert attempts[-1].reason
+        assert attempts[-1].reason in stored.reason
         gates = await live.queue.gates()
         assert {p: g.state for p, g in gates.items()} == {
             "refuses-1": "held",

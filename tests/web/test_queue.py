@@ -71,7 +71,7 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     dialog = page.get_by_role("dialog", name="Add a job to the queue")
     dialog.locator("input[type=file]").set_input_files(str(gcode))
     dialog.get_by_label("Copies").fill("2")
-    dialog.get_by_label("Printer", exact=True).select_option("fleet-a")
+    dialog.get_by_role("combobox", name="Printer").select_option("fleet-a")
     dialog.get_by_role("button", name="Add to queue").click()
     expect(dialog).to_be_hidden()
     expect(page.locator(".toast.ok", has_text="Queued 2 × queue_web_part.gcode.")).to_be_visible()
@@ -83,7 +83,7 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     )
     expect(row.locator(".job-needs")).to_have_text("only Printer A")
     expect(page.locator("#queue-count")).to_have_text("1")
-    page.get_by_role("link", name="Printers").click()
+    page.get_by_role("link", name="Printers", exact=True).click()
     card = tile(page, "fleet-a")
     expect(card.locator(".file")).to_contain_text("queue_web_part.gcode", timeout=PRINT_WITHIN)
 
@@ -110,7 +110,7 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     expect(row.locator(".copies-text")).to_have_text("1 done · 1 in progress · 0 left of 2")
 
     # The second copy ends; "Bad…" asks for a cause and sends the copy back.
-    page.get_by_role("link", name="Printers").click()
+    page.get_by_role("link", name="Printers", exact=True).click()
     bad = card.get_by_role("button", name="Plate cleared, print bad — Printer A")
     expect(bad).to_be_visible(timeout=PRINT_WITHIN)
     bad.click()

@@ -9,16 +9,20 @@ resource:
   runs, G-code;
 - :mod:`kybercore.api.files`: ``/api/printers/{id}/files``, list, metadata, thumbnails,
   upload, delete;
+- :mod:`kybercore.api.temperatures`: ``/api/printers/{id}/temperatures``, the heaters'
+  last half hour;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
 - :mod:`kybercore.api.jobs`: ``/api/jobs``, ``/api/queue``, ``/api/gates`` and the plate
   gates (``/api/printers/{id}/clear|hold|release``): the job queue;
 - :mod:`kybercore.api.history`: ``/api/history``, ``/api/history.csv``, ``/api/stats``:
   the ledger's job history and statistics; :mod:`kybercore.api.metrics`: ``/metrics``;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
+- :mod:`kybercore.api.audit`: ``/api/audit``, the audit log (admins);
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
 - :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
 
-Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
+Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first; every action
+is recorded in the audit log by :class:`~kybercore.api.recorder.AuditMiddleware`.
 
 The lifespan opens the queue's database (SQLite beside printers.json unless a URL is
 given), then starts the fleet and the queue; it stops them in the reverse order.
@@ -40,7 +44,18 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
 from kybercore.aio import cancel_and_wait
-from kybercore.api import files, fleet, history, jobs, metrics, printers, session, ws
+from kybercore.api import (
+    audit,
+    files,
+    fleet,
+    history,
+    jobs,
+    metrics,
+    printers,
+    session,
+    temperatures,
+    ws,
+)
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -51,6 +66,7 @@ from kybercore.api.errors import (
 )
 from kybercore.api.guard import GuardMiddleware
 from kybercore.api.hosts import HostAllowlist
+from kybercore.api.recorder import AuditMiddleware
 from kybercore.api.security import Access
 from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
@@ -58,6 +74,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
+from kybercore.ledger.audit import AuditLog
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.store import PrinterRegistry
@@ -89,6 +106,7 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         engine = await open_database(database_url or default_database_url(folder))
+        app.state.audit = AuditLog(engine)
         try:
             async with new_http_client() as http:
                 service = FleetService(registry, http, **service_options)
@@ -136,7 +154,9 @@ def create_app(
         hosts=allowed_hosts or HostAllowlist(),
         upload_limit=MAX_UPLOAD_BYTES,
     )
-    for module in (fleet, printers, files, jobs, ws, session):
+    # Outside the guard: it records the answer the client really gets (a 413 included).
+    app.add_middleware(AuditMiddleware)
+    for module in (fleet, printers, files, temperatures, jobs, ws, session, audit):
         app.include_router(module.router)
     for module in (history, metrics):  # the ledger (issue 17)
         app.include_router(module.router)

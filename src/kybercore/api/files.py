@@ -10,7 +10,7 @@ from __future__ import annotations
 import mimetypes
 from typing import Annotated, Any, Final
 
-from fastapi import APIRouter, File, Form, UploadFile
+from fastapi import APIRouter, File, Form, Request, UploadFile
 from fastapi.responses import Response
 
 from kybercore.api.deps import OPERATOR, VIEWER, Service
@@ -21,6 +21,7 @@ from kybercore.api.models import (
     UploadResult,
     upload_result,
 )
+from kybercore.api.recorder import note
 from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput
 
@@ -89,6 +90,7 @@ async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Respon
     dependencies=[OPERATOR],
 )
 async def upload(
+    request: Request,
     service: Service,
     printer_id: str,
     file: Annotated[UploadFile, File(description="The G-code file.")],
@@ -100,6 +102,7 @@ async def upload(
     201 once the file is stored, whatever became of the start (``started``, ``start``): a
     start refused then is reported with its reasons, never as a failed upload. An error
     answer is the upload's own failure (or a start refused before any byte was sent)."""
+    note(request, params={"file": file.filename, "start": start, "confirm": confirm})
     filename = safe_path(file.filename or "")
     # The body was counted as it arrived (GuardMiddleware, the upload limit); the file
     # itself stays spooled on disk and is streamed on to Moonraker.

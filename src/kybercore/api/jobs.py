@@ -39,6 +39,7 @@ from kybercore.api.queue_models import (
     QueueState,
     WhyLineOut,
 )
+from kybercore.api.recorder import note
 from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput
 from kybercore.jobs.models import Job
@@ -55,7 +56,7 @@ _CREATE_BODY: Final = {
         "required": True,
         "content": {
             _MULTIPART: {"schema": UPLOAD_FORM_SCHEMA},
-            _JSON: {"schema": {"$ref": "#/components/schemas/JobFromPrinter"}},
+            _JSON: {"schema": JobFromPrinter.model_json_schema()},
         },
     }
 }
@@ -105,6 +106,8 @@ async def create_job(request: Request, queue: Queue, user: Operator) -> Job:
         )
     async with request.form(max_files=1, max_fields=_MAX_FORM_FIELDS) as form:
         upload, options = _upload_form(form)
+        fields = options.model_dump(mode="json", exclude_defaults=True)
+        note(request, params={"file": upload.filename, **fields})  # the audit log reads no form
         return await queue.add_job(
             _job_file_name(upload.filename or ""),
             upload.file,
@@ -184,8 +187,11 @@ async def queue_state(queue: Queue) -> QueueState:
 
 
 @router.post("/api/queue", response_model=QueueState, responses=ERROR_RESPONSES)
-async def change_queue(queue: Queue, user: Operator, change: QueueChange) -> QueueState:
+async def change_queue(
+    request: Request, queue: Queue, user: Operator, change: QueueChange
+) -> QueueState:
     """Pause (no new copy starts; prints under way go on) or resume dispatching."""
+    note(request, action="queue.pause" if change.paused else "queue.resume")
     if change.paused:
         await queue.pause(user=user.name)
     else:

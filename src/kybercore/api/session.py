@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 
 from kybercore.api.auth import COOKIE, SESSION_SECONDS, Role
+from kybercore.api.recorder import note
 from kybercore.api.security import Access
 
 router = APIRouter()
@@ -51,6 +52,7 @@ async def login(request: Request, body: SessionLogin) -> Response:
     """Check a token and give this browser a session (an HttpOnly cookie) made from it."""
     access: Access = request.app.state.access
     identity, session = access.login(body.token)
+    note(request, actor=identity.name, role=identity.role)  # the audit row names who logged in
     answer = JSONResponse({"access": access.mode, "name": identity.name, "role": identity.role})
     if session is not None:
         answer.set_cookie(

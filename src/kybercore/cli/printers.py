@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from contextlib import AbstractContextManager as ContextManager
 from contextlib import contextmanager
 from typing import Annotated, Any, TypeVar
 
@@ -19,6 +20,7 @@ from pydantic import ValidationError
 from rich.table import Table
 from rich.text import Text
 
+from kybercore.cli.audit import CliAction, audited
 from kybercore.cli.options import PrintersFile, ServerUrl, Token
 from kybercore.cli.output import done, fail, print_table
 from kybercore.cli.remote import DEFAULT_URL, Remote, remote_errors
@@ -135,22 +137,24 @@ def add_printer(
     max_bed_temp: BedOpt = None,
 ) -> None:
     """Add a printer."""
-    with _errors():
-        new = _build(
-            PrinterCreate,
-            id=printer_id,
-            name=name,
-            moonraker_url=url,
-            model=model,
-            location=location,
-            power_group=power_group,
-            notes=notes,
-            tags=tag,
-            api_key=api_key,
-            enabled=not disabled,
-            capabilities=_capabilities(size, nozzle, material, max_extruder_temp, max_bed_temp),
-        )
-        printer = _registry(ctx).add(new)
+    fields = {
+        "id": printer_id,
+        "name": name,
+        "moonraker_url": url,
+        "model": model,
+        "location": location,
+        "power_group": power_group,
+        "notes": notes,
+        "tags": tag,
+        "api_key": api_key,
+        "enabled": not disabled,
+        "capabilities": _capabilities(size, nozzle, material, max_extruder_temp, max_bed_temp),
+    }
+    given = {k: v for k, v in fields.items() if v is not None}
+    target = f"printer:{printer_id}" if printer_id else ""
+    with _errors(), _audited(ctx, CliAction("printer.add", target, given)) as action:
+        printer = _registry(ctx).add(_build(PrinterCreate, **fields))
+        action.target = f"printer:{printer.id}"
     done(f"Added printer '{printer.id}' ({printer.name}) at {printer.moonraker_url}.")
 
 
@@ -191,11 +195,12 @@ def edit_printer(
         "enabled": enabled,
         "capabilities": _capabilities(size, nozzle, material, max_extruder_temp, max_bed_temp),
     }
-    with _errors():
-        if clear_api_key:
-            if api_key is not None:
-                raise InvalidInput("Give either --api-key or --clear-api-key, not both.")
-            changes["api_key"] = ""  # PATCH semantics: "" removes the key
+    if clear_api_key and api_key is None:
+        changes["api_key"] = ""  # PATCH semantics: "" removes the key
+    given = {k: v for k, v in changes.items() if v is not None}
+    with _errors(), _audited(ctx, CliAction("printer.edit", f"printer:{printer_id}", given)):
+        if clear_api_key and api_key is not None:
+            raise InvalidInput("Give either --api-key or --clear-api-key, not both.")
         patch = _build(PrinterUpdate, **changes)
         if not patch.model_fields_set:
             raise InvalidInput("Nothing to change: give at least one option (see --help).")
@@ -217,7 +222,7 @@ def remove_printer(
     if not yes and not typer.confirm(f"Remove printer '{printer.id}' ({printer.name})?"):
         typer.echo("Nothing removed.")
         raise typer.Exit(1)
-    with _errors():
+    with _errors(), _audited(ctx, CliAction("printer.remove", f"printer:{printer_id}")):
         registry.remove(printer_id)
     done(f"Removed printer '{printer_id}'.")
 
@@ -275,6 +280,11 @@ def release(printer_id: PrinterIdArg, url: ServerUrl = DEFAULT_URL, token: Token
 
 def _registry(ctx: typer.Context) -> PrinterRegistry:
     return PrinterRegistry(ctx.meta.get(_FILE_KEY))
+
+
+def _audited(ctx: typer.Context, action: CliAction) -> ContextManager[CliAction]:
+    """Record the change in the audit log (:mod:`kybercore.cli.audit`)."""
+    return audited(ctx.meta.get(_FILE_KEY), action)
 
 
 def _capabilities(

@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from kybercore.api.auth import ROLES, TokenStore, tokens_path_for
+from kybercore.cli.audit import CliAction, audited
 from kybercore.cli.options import PrintersFile
 from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
@@ -32,7 +33,10 @@ def create(
 ) -> None:
     """Create a token and print it once (only its hash is stored)."""
     try:
-        record, token = _store(printers_file).create(name, role)
+        asked = CliAction("token.create", params={"name": name, "role": role})
+        with audited(printers_file, asked) as action:
+            record, token = _store(printers_file).create(name, role)
+            action.target = f"token:{record.id}"
     except KyberCoreError as exc:
         raise fail(exc.message, code=2) from None
     console.print(f"Created token {record.id} for {record.name} ({record.role}).")
@@ -60,7 +64,9 @@ def revoke(
     """Revoke a token at once: a running server refuses it from its next request, ends the
     browser sessions made from it and closes its WebSockets within a second."""
     try:
-        record = _store(printers_file).revoke(token_id)
+        with audited(printers_file, CliAction("token.revoke", f"token:{token_id}")) as action:
+            record = _store(printers_file).revoke(token_id)
+            action.params = {"name": record.name, "role": record.role}
     except KyberCoreError as exc:
         raise fail(exc.message, code=2) from None
     console.print(f"Revoked {record.id} ({record.name}).")

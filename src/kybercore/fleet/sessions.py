@@ -21,6 +21,7 @@ import httpx
 from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse
 from kybercore.errors import PrinterError, UnknownPrinter
 from kybercore.fleet.hub import Hub
+from kybercore.fleet.temperatures import Temperatures
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.events import (
@@ -82,6 +83,8 @@ class Sessions:
         self._http = http
         self._connect = connect
         self._hub = hub
+        self.temperatures = Temperatures()
+        """The heaters' last half hour, fed from the same status updates."""
         self._printers: dict[str, FleetPrinter] = {}
         self._background: set[asyncio.Task[Any]] = set()
         self._listeners: list[Listener] = []
@@ -121,6 +124,7 @@ class Sessions:
         for printer_id in list(self._printers):
             if printer_id not in wanted:
                 closing.append(self._spawn(self._close(self._printers.pop(printer_id))))
+                self.temperatures.forget(printer_id)
                 self._hub.mark(printer_id)
         for printer_id, config in wanted.items():
             current = self._printers.get(printer_id)
@@ -183,14 +187,18 @@ class Sessions:
         pid = printer.config.id
         if isinstance(event, StatusDelta):
             apply_status(live.status, event.delta)  # the live state is ours alone
+            self.temperatures.feed(pid, live.status, event.delta)
             self._follow_file(printer)
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
+            self.temperatures.feed(pid, live.status, live.status)
             self._follow_file(printer)
             self._read_limits(printer)
         elif isinstance(event, ConnectionChanged):
             live.connection = event.connection
             live.connection_error = event.detail
+            if event.connection != "online":
+                self.temperatures.gap(pid)
             self._hub.event(
                 {
                     "type": "connection",
@@ -228,6 +236,8 @@ class Sessions:
     def _klippy_changed(self, printer: FleetPrinter, state: str, message: str) -> None:
         printer.live.klippy_state = state
         printer.live.klippy_message = message
+        if state != "ready":
+            self.temperatures.gap(printer.config.id)
         event = {"type": "klippy", "printer": printer.config.id, "state": state}
         self._hub.event({**event, "message": message})
 
@@ -249,6 +259,7 @@ class Sessions:
             return  # removed or replaced meanwhile: its state is someone else's now
         live = printer.live
         apply_status(live.status, status)
+        self.temperatures.feed(printer_id, live.status, status)
         live.updated_at = time.time()
         webhooks = status.get("webhooks", {})
         state = webhooks.get("state")

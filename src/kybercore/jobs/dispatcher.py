@@ -41,7 +41,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job
-from kybercore.jobs.rules import Plan, PrinterSnapshot, is_heating, plan, power_group
+from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, is_heating, plan, power_group
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker, seen
 from kybercore.moonraker.events import (
@@ -101,7 +101,8 @@ class Dispatcher:
         self._starts_seen: dict[str, tuple[str, asyncio.Event, bool]] = {}
         """Printer -> (upload name, set once print_stats shows it, whether it showed that
         name before the start)."""
-        self._stopping = False
+        self.memo = Memo()
+        """Validation verdicts kept between rounds (the planner's cache)."""
         self.rounds = 0
         """Planning rounds run so far (tests and the bench read it)."""
 
@@ -116,7 +117,6 @@ class Dispatcher:
     async def stop(self) -> None:
         """Stop planning and abandon the starts in progress (the next start of KyberCore
         settles them from the printers, as after a crash)."""
-        self._stopping = True
         if self._stop_listening is not None:
             self._stop_listening()
             self._stop_listening = None
@@ -132,7 +132,8 @@ class Dispatcher:
         self._wake.set()
 
     async def abandon(self, attempt_id: int) -> None:
-        """Stop starting ``attempt_id`` (its job was cancelled); no-op when not starting."""
+        """Stop starting ``attempt_id`` (its job was cancelled); no-op when not starting.
+        The attempt stays as it was: the caller ends it."""
         printer = self._running.get(attempt_id)
         task = self._runs.get(printer) if printer is not None else None
         if task is not None:
@@ -188,6 +189,7 @@ class Dispatcher:
             now=now,
             paused=paused,
             attempts_per_printer=tried,
+            memo=self.memo,
         )
         by_id = {job.id: job for job in jobs}
         for assignment in decided.assignments:
@@ -214,35 +216,25 @@ class Dispatcher:
         usage: dict[str, tuple[float, datetime | None]],
     ) -> PrinterSnapshot:
         config, live = printer.config, printer.live
-        state = live.status.get("print_stats", {}).get("state", "")
-        idle = (
-            live.connection == "online"
-            and live.klippy_state == "ready"
-            and state not in ("printing", "paused")
-            and config.id not in self._runs
-        )
         seconds, last_used = usage.get(config.id, (0.0, None))
-        gate = gates.get(config.id) or Gate(config.id, "available", "", _EPOCH, None, "")
         return PrinterSnapshot(
             id=config.id,
             facts=facts(config, live),
-            idle=idle,
-            model=config.model,
+            gate=gates.get(config.id) or Gate(config.id, "available", "", _EPOCH, None, ""),
             tags=tuple(config.tags),
             power_group=power_group(config),
             heating=is_heating(live.status),
-            gate=gate,
             usage_seconds=seconds,
             last_used=last_used,
         )
 
-    def starting(self) -> dict[str, int]:
-        """Starts in progress per printer: they count against the heating budget."""
+    def starting(self) -> set[str]:
+        """Printers whose start is in progress: they count against the heating budget."""
         loop_now = asyncio.get_running_loop().time()
         for printer_id, until in list(self._warming.items()):
             if until < loop_now:
                 self._warming.pop(printer_id)
-        return {printer_id: 1 for printer_id in {*self._runs, *self._warming}}
+        return {*self._runs, *self._warming}
 
     # -- one attempt -------------------------------------------------------------------
 
@@ -253,13 +245,15 @@ class Dispatcher:
         self._runs[attempt.printer] = task
 
     async def _run(self, attempt: Attempt, job: Job) -> None:
+        abandoned = False
         try:
             attempt = await self._upload_and_start(attempt, job)
         except ActionRejected as exc:
-            # The store refused a step: the job was cancelled (or the attempt ended)
-            # meanwhile. Whoever did that owns what happens next.
+            # The store refused a step: the attempt ended meanwhile. Whoever ended it
+            # owns what happens next.
             log.info("%s: attempt %d stopped: %s", attempt.printer, attempt.id, exc)
         except asyncio.CancelledError:
+            abandoned = True  # stop() or abandon(): the caller settles the attempt
             raise
         except Exception as exc:
             log.exception("%s: starting attempt %d failed", attempt.printer, attempt.id)
@@ -268,7 +262,7 @@ class Dispatcher:
             self._runs.pop(attempt.printer, None)
             self._running.pop(attempt.id, None)
             self._starts_seen.pop(attempt.printer, None)
-            if not self._stopping:
+            if not abandoned:
                 self._tracker.follow(attempt)
                 self.wake()
 
@@ -298,7 +292,8 @@ class Dispatcher:
             # It may have started or not: what the printer shows next decides.
             lost = f" (the connection was lost while starting: {exc.message})"
         except KyberCoreError as exc:
-            return await self._failed_to_start(attempt, f"{printer} refused the start: {exc.message}")
+            why = f"{printer} refused the start: {exc.message}"
+            return await self._failed_to_start(attempt, why)
         self._check_started(printer)
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(started.wait(), self.start_within)

@@ -18,7 +18,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.dispatcher import Dispatcher
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job, NewJob, PlateVerdict, Requirements
-from kybercore.jobs.rules import WhyLine, never_printable, why
+from kybercore.jobs.rules import PrinterSnapshot, WhyLine, never_printable, why
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker
 
@@ -54,7 +54,9 @@ class QueueService:
             heating_budget=heating_budget,
             start_within=start_within,
         )
-        store.on_change = self._changed
+        # The store is built before the service that listens to it (the app and the CLI
+        # make it); it has one listener, and it is this service's.
+        store._on_change = self._changed
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -103,7 +105,7 @@ class QueueService:
             allow_mismatch=allow_mismatch,
             max_attempts=max_attempts,
         )
-        refusals = never_printable(new, self._printers())
+        refusals = never_printable(new, await self._snapshots())
         if refusals:
             raise ActionRejected(
                 "No printer of the fleet could ever print this job: "
@@ -157,23 +159,33 @@ class QueueService:
                 code="confirmation_required",
                 reasons=[_in_flight(a) for a in live],
             )
-        job, cancelled = await self.store.cancel_job(job_id, user, reason=f"cancelled by {user}")
-        for attempt in cancelled:
-            await self.dispatcher.abandon(attempt.id)
-            await self._cancel_print(attempt)
+        job, live = await self.store.cancel_job(job_id, user, reason=f"cancelled by {user}")
+        for attempt in live:
+            await self._cancel_attempt(attempt, user)
         return job
 
-    async def _cancel_print(self, attempt: Attempt) -> None:
-        """Cancel ``attempt``'s print on its printer, if that printer is printing it."""
+    async def _cancel_attempt(self, attempt: Attempt, user: str) -> None:
+        """Stop a live attempt of a cancelled job: a print running is cancelled on the
+        printer (the tracker then ends the attempt as the printer says); one still
+        starting ends here."""
+        await self.dispatcher.abandon(attempt.id)
+        attempt = await self.store.attempt(attempt.id)
+        if not attempt.live:
+            return
         try:
             printer = self.fleet.sessions.get(attempt.printer)
             stats = printer.live.status.get("print_stats", {})
-            if stats.get("filename") != attempt.upload_name:
-                return
-            if stats.get("state") in ("printing", "paused"):
+            if stats.get("filename") == attempt.upload_name and stats.get("state") in (
+                "printing",
+                "paused",
+            ):
                 await self.fleet.client(attempt.printer).print_cancel()
         except KyberCoreError as exc:
             log.warning("%s: could not cancel the job's print: %s", attempt.printer, exc)
+        if attempt.state not in ("printing", "paused"):
+            reason = f"Job cancelled by {user} before the print started."
+            ended = await self.store.finish(attempt.id, "cancelled", reason=reason)
+            self.tracker.follow(ended)
 
     # -- the queue ---------------------------------------------------------------------
 
@@ -223,17 +235,16 @@ class QueueService:
         return why(
             job,
             await self._snapshots(),
+            queue=await self.store.jobs(),
             heating_budget=dispatcher.heating_budget,
             starting=dispatcher.starting(),
             now=dispatcher.now(),
             paused=await self.store.queue_paused(),
-            attempts_per_printer=await self.store.attempts_per_printer(job_id),
+            attempts_per_printer={job_id: await self.store.attempts_per_printer(job_id)},
+            memo=dispatcher.memo,
         )
 
-    def _printers(self) -> list[Any]:
-        return [p.config for p in self.fleet.sessions.all()]
-
-    async def _snapshots(self) -> list[Any]:
+    async def _snapshots(self) -> list[PrinterSnapshot]:
         gates = await self.store.gates()
         usage = await self.store.usage(self.dispatcher.usage_since())
         return self.dispatcher.snapshots(gates, usage)

@@ -62,7 +62,9 @@ class Outcome:
         return self.state not in ("printing", "paused")
 
 
-def seen(status: Status, klippy_state: str, klippy_message: str, upload_name: str) -> Outcome | None:
+def seen(
+    status: Status, klippy_state: str, klippy_message: str, upload_name: str
+) -> Outcome | None:
     """What the printer's live state says about the print of ``upload_name``; None when it
     does not show that print (another file, none, or Klippy not there to tell)."""
     stats = status.get("print_stats", {})
@@ -71,9 +73,10 @@ def seen(status: Status, klippy_state: str, klippy_message: str, upload_name: st
     state = stats.get("state")
     seconds = finite_number(stats.get("print_duration"))
     message = str(stats.get("message") or "")
-    if state in ("printing", "paused") and klippy_state == "shutdown":
+    if state in ("printing", "paused", "error") and klippy_state == "shutdown":
         why = str(status.get("webhooks", {}).get("state_message") or klippy_message).strip()
-        return Outcome("failed", f"Klipper shut down mid-print: {why or 'no message'}", seconds)
+        why = why.splitlines()[0] if why else message or "no message"
+        return Outcome("failed", f"Klipper shut down mid-print: {why}", seconds)
     if state in ("printing", "paused"):
         return Outcome(state)
     if state == "complete":
@@ -101,6 +104,8 @@ def from_history(job: Mapping[str, Any]) -> Outcome:
         "klippy_disconnect": "Klipper disconnected mid-print (Moonraker's history).",
         "interrupted": "Moonraker restarted during the print and cannot tell how it "
         "ended; check the part before clearing the plate.",
+        "server_exit": "Moonraker stopped during the print and cannot tell how it ended; "
+        "check the part before clearing the plate.",
     }
     return Outcome("failed", reasons.get(status, f"Moonraker's history says '{status}'."), seconds)
 

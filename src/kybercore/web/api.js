@@ -73,7 +73,21 @@ export const api = {
   clearPlate: (id, verdict, cause = "") => request("POST", `${printer(id)}/clear`, { verdict, cause }),
   hold: (id, reason) => request("POST", `${printer(id)}/hold`, { reason }),
   release: (id) => request("POST", `${printer(id)}/release`),
+  // The ledger: history, statistics, temperatures (query: an object of filters).
+  temperatures: (id, minutes) => request("GET", `${printer(id)}/temperatures?minutes=${minutes}`),
+  history: (query) => request("GET", `/api/history?${queryString(query)}`),
+  historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,
+  stats: (query) => request("GET", `/api/stats?${queryString(query)}`),
 };
+
+/** "a=1&b=x" from an object; empty values left out. */
+export function queryString(query) {
+  const params = new URLSearchParams();
+  for (const [key, value] of Object.entries(query || {})) {
+    if (value !== undefined && value !== null && value !== "") params.set(key, String(value));
+  }
+  return params.toString();
+}
 
 /**
  * Upload a G-code file with XMLHttpRequest (fetch cannot report upload progress).

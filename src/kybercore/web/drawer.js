@@ -1,10 +1,11 @@
 // The printer drawer: a side panel (non-modal, the fleet stays visible and live) with the
-// printer's files and its console as tabs.
+// printer's temperature graph, and its files and console as tabs.
 import { consoleResponse, hideConsole, showConsole } from "./console.js";
 import { setText } from "./dom.js";
 import { hideFiles, refreshFileButtons, showFiles } from "./files.js";
 import { t } from "./i18n.js";
 import { printers, statusOf, subscribe } from "./store.js";
+import { hideTemperatures, relabelTemperatures, showTemperatures } from "./temps.js";
 
 let els = null;
 let openId = null;
@@ -44,6 +45,7 @@ export function initDrawer(elements) {
 export function openDrawer(id, which = "files") {
   if (!printers.has(id)) return;
   if (!openId) opener = document.activeElement;
+  if (openId !== id && els.temps) showTemperatures(els.temps, id);
   openId = id;
   els.root.hidden = false;
   document.body.classList.add("drawer-open");
@@ -56,6 +58,7 @@ export function closeDrawer() {
   openId = null;
   hideFiles();
   hideConsole();
+  hideTemperatures();
   els.root.hidden = true;
   document.body.classList.remove("drawer-open");
   if (opener && opener.isConnected) opener.focus();
@@ -67,6 +70,7 @@ export function relabelDrawer() {
   if (openId) {
     updateHeader();
     selectTab(tab, false);
+    relabelTemperatures();
   }
 }
 

@@ -10,6 +10,7 @@ import { getLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
+import { LEDGER_PAGES, showLedgerPage } from "./ledger_views.js";
 import { initQueue, relabelQueue } from "./queue.js";
 import { refreshQueue } from "./queue_data.js";
 import { can, currentSession, loadSession, login, logout, needsLogin, onSessionChange } from "./session.js";
@@ -101,11 +102,12 @@ function applySession() {
   $("add-printer").hidden = !can("admin");
 }
 
-/** Printers or Queue, from the address (#queue), so either can be bookmarked. */
+/** Printers, Queue, History or Statistics, from the address (#queue...), so any can be bookmarked. */
 function route() {
-  const page = location.hash === "#queue" ? "queue" : "fleet";
+  const page = location.hash === "#queue" ? "queue" : LEDGER_PAGES[location.hash] || "fleet";
   document.body.dataset.page = page;
   $("queue-view").hidden = page !== "queue";
+  showLedgerPage(page);
   $("fleet").hidden = page !== "fleet";
   document.querySelector(".toolbar").hidden = page !== "fleet";
   for (const link of document.querySelectorAll("[data-page]")) {
@@ -188,6 +190,7 @@ async function main() {
     tabs: [$("tab-files"), $("tab-console")],
     filesPanel: $("panel-files"),
     consolePanel: $("panel-console"),
+    temps: $("drawer-temps"),
   });
   initQueue({
     list: $("queue-list"),

@@ -1,5 +1,6 @@
 // Every label of the dashboard, in English and Spanish. Keys must match in both.
 import { en } from "./strings_en.js";
 import { es } from "./strings_es.js";
+import { ledger } from "./strings_ledger.js";
 
-export const STRINGS = { en, es };
+export const STRINGS = { en: { ...en, ...ledger.en }, es: { ...es, ...ledger.es } };

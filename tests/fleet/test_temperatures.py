@@ -1,0 +1,83 @@
+"""The heaters' ring buffer: one sample a second, held values, gaps, a bounded window."""
+
+from __future__ import annotations
+
+from kybercore.fleet.temperatures import CAPACITY, WINDOW_SECONDS, Temperatures
+
+
+class Clock:
+    def __init__(self, now: float = 1_000_000.0) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def heater(temperature: float, target: float = 0.0) -> dict[str, float]:
+    return {"temperature": temperature, "target": target}
+
+
+def test_updates_within_a_second_keep_one_sample_the_latest() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    for step, value in enumerate((20.0, 21.0, 22.0, 23.0)):
+        clock.now = 1_000_000.0 + step * 0.25  # Moonraker's four pushes a second
+        status = {"extruder": heater(value, 200)}
+        temps.feed("p", status, status)
+    series = temps.series("p")["extruder"]
+    assert series["temperature"] == [23.0]
+    assert series["target"] == [200.0]
+
+
+def test_a_heater_that_sends_nothing_holds_its_value_until_now() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    status = {"extruder": heater(21.5), "heater_bed": heater(22.0, 60)}
+    temps.feed("p", status, status)
+    clock.now += 1.5
+    status["extruder"] = heater(30.0)
+    temps.feed("p", status, {"extruder": status["extruder"]})  # the bed did not change
+    clock.now += 120
+    series = temps.series("p")
+    assert series["extruder"]["temperature"] == [21.5, 30.0, 30.0]
+    assert series["extruder"]["t"][-1] == clock.now
+    assert series["heater_bed"]["temperature"] == [22.0, 22.0]
+    assert series["heater_bed"]["target"] == [60.0, 60.0]
+
+
+def test_a_gap_ends_the_series_and_nothing_is_held_across_it() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    status = {"extruder": heater(50.0, 60)}
+    temps.feed("p", status, status)
+    clock.now += 5
+    temps.gap("p")  # offline
+    temps.gap("p")  # a second notice adds nothing
+    clock.now += 60
+    series = temps.series("p")["extruder"]
+    assert series["temperature"] == [50.0, None]
+    assert series["target"] == [60.0, None]
+
+
+def test_only_the_window_asked_for_and_never_more_than_capacity() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    for second in range(WINDOW_SECONDS * 2):
+        clock.now = 1_000_000.0 + second
+        status = {"extruder": heater(20 + second % 7)}
+        temps.feed("p", status, status)
+    full = temps.series("p")["extruder"]
+    assert len(full["t"]) == WINDOW_SECONDS + 1  # the window's samples, inclusive
+    assert full["t"][0] == clock.now - WINDOW_SECONDS
+    assert len(temps.series("p", minutes=2)["extruder"]["t"]) == 121
+    assert temps._printers["p"]["extruder"].count == CAPACITY
+
+
+def test_deltas_without_heaters_and_removed_printers_leave_nothing() -> None:
+    temps = Temperatures(Clock())
+    temps.feed("p", {"toolhead": {"position": [0, 0, 0, 0]}}, {"toolhead": {}})
+    assert temps.series("p") == {}
+    status = {"extruder": heater(20.0)}
+    temps.feed("p", status, status)
+    temps.forget("p")
+    assert temps.series("p") == {}
