@@ -90,7 +90,7 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     # It ends: the plate awaits a clear, shown on the tile and counted at a glance.
     good = card.get_by_role("button", name="Plate cleared, print good — Printer A")
     expect(good).to_be_visible(timeout=PRINT_WITHIN)
-    expect(card.locator(".gate-text")).to_contain_text("plate awaiting a clear since")
+    expect(card.locator(".gate-text")).to_contain_text("Plate to clear since")
     expect(page.locator('.count-chip[data-group="awaiting_clear"] strong')).to_have_text("1")
     assert api.get("/api/gates").json()["fleet-a"]["state"] == "awaiting_clear"
 

@@ -49,7 +49,8 @@ export class GateStrip {
     if (state === "available") return;
     this.el.dataset.gate = state;
     const awaiting = state === "awaiting_clear";
-    const text = awaiting ? t("gate.awaiting", { time: sinceText(gate.since) }) : t(`gate.${state}`, { reason: gate.reason });
+    const since = t("gate.awaiting", { time: sinceText(gate.since) });
+    const text = awaiting ? [since, gate.reason].filter(Boolean).join(" — ") : t(`gate.${state}`, { reason: gate.reason });
     setText(this.text, text);
     setAttr(this.el, "aria-label", `${p.name}: ${text}`);
     setHidden(this.good, !awaiting);

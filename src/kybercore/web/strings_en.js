@@ -305,7 +305,7 @@ export const en = {
   "action.clear_bad": "Clear plate (bad)",
   "action.hold": "Hold",
   "action.release": "Release",
-  "gate.awaiting": "Print done: plate awaiting a clear since {time}",
+  "gate.awaiting": "Plate to clear since {time}",
   "gate.held": "Held: {reason}",
   "gate.maintenance": "Maintenance: {reason}",
   "gate.good": "Good",

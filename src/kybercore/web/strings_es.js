@@ -305,7 +305,7 @@ export const es = {
   "action.clear_bad": "Despejar placa (mala)",
   "action.hold": "Retener",
   "action.release": "Liberar",
-  "gate.awaiting": "Impresión terminada: placa por despejar desde las {time}",
+  "gate.awaiting": "Placa por despejar desde las {time}",
   "gate.held": "Retenida: {reason}",
   "gate.maintenance": "Mantenimiento: {reason}",
   "gate.good": "Buena",
