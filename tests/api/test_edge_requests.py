@@ -46,7 +46,7 @@ async def _ws_refused(server: KyberCoreServer, name: str, headers: dict[str, str
             origin=f"http://{netloc}",  # type: ignore[arg-type]
             additional_headers=headers,
         ) as ws:
-            assert (await ws.recv())  # the snapshot: the socket really works
+            assert await ws.recv()  # the snapshot: the socket really works
             return False
     except websockets.InvalidStatus:
         return True
@@ -68,9 +68,7 @@ async def test_a_rebound_name_is_refused_and_a_proxy_name_is_served(
         assert client.get("/api/session", headers={"Host": "evil.example"}).status_code == 421
         assert client.get("/api/printers").json() == []  # nothing was added
 
-        proxied = client.post(
-            "/api/printers", json=NEW_PRINTER, headers=_named(server, PROXY_NAME)
-        )
+        proxied = client.post("/api/printers", json=NEW_PRINTER, headers=_named(server, PROXY_NAME))
         assert proxied.status_code == 201, proxied.text
         # Any port: behind a proxy the Host names the proxy's port, not ours.
         assert client.get("/api/printers", headers={"Host": f"{PROXY_NAME}:443"}).is_success

@@ -89,6 +89,14 @@ def test_largest_thumbnail_is_shown() -> None:
     assert view["job"]["thumbnail"] == ".thumbs/cube-300x300.png"
 
 
+def test_a_thumbnail_of_a_file_in_a_folder_is_given_under_gcodes() -> None:
+    name = "kybercore/j1-c1-a1-cube.gcode"
+    status = {**PRINTING, "print_stats": {**PRINTING["print_stats"], "filename": name}}
+    thumbs = [{"width": 300, "relative_path": ".thumbs/j1-c1-a1-cube-300x300.png"}]
+    view = fuse(CONFIG, live(status=status, file_meta={"filename": name, "thumbnails": thumbs}))
+    assert view["job"]["thumbnail"] == "kybercore/.thumbs/j1-c1-a1-cube-300x300.png"
+
+
 def test_eta() -> None:
     assert eta_seconds(0.0, 0.0, 300) == 300
     assert eta_seconds(1.0, 100.0, 300) == 0

@@ -10,16 +10,22 @@ resource:
 - :mod:`kybercore.api.files`: ``/api/printers/{id}/files``, list, metadata, thumbnails,
   upload, delete;
 - :mod:`kybercore.api.fleet`: ``/api/health`` and bulk actions and dry runs;
+- :mod:`kybercore.api.jobs`: ``/api/jobs``, ``/api/queue``, ``/api/gates`` and the plate
+  gates (``/api/printers/{id}/clear|hold|release``): the job queue;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
 - :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
 
 Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first.
+
+The lifespan opens the queue's database (SQLite beside printers.json unless a URL is
+given), then starts the fleet and the queue; it stops them in the reverse order.
 """
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import asyncio
+from collections.abc import AsyncIterator, Callable, Coroutine, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any, Final
@@ -31,7 +37,8 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
-from kybercore.api import files, fleet, printers, session, ws
+from kybercore.aio import cancel_and_wait
+from kybercore.api import files, fleet, jobs, printers, session, ws
 from kybercore.api.deps import ORJSONResponse
 from kybercore.api.docs import add_docs
 from kybercore.api.errors import (
@@ -43,8 +50,12 @@ from kybercore.api.errors import (
 from kybercore.api.guard import GuardMiddleware
 from kybercore.api.hosts import HostAllowlist
 from kybercore.api.security import Access
+from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
+from kybercore.jobs.files import JobFiles
+from kybercore.jobs.service import QueueService
+from kybercore.jobs.store import JobStore
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.store import PrinterRegistry
 
@@ -52,26 +63,48 @@ WEB_DIR: Final = Path(__file__).parent.parent / "web"
 MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 
+OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
+"""Work to run once the fleet and the queue are up (``kybercore demo`` queues its jobs)."""
+
+
 def create_app(
     registry: PrinterRegistry,
     access: Access | None = None,
     *,
     allowed_hosts: HostAllowlist | None = None,
+    database_url: str | None = None,
+    queue_options: Mapping[str, Any] | None = None,
+    on_started: OnStarted | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
-    (plus any IP address) unless told; ``service_options`` go to :class:`FleetService`."""
+    (plus any IP address) unless told; the queue's database at ``database_url`` (default:
+    SQLite beside printers.json); ``queue_options`` go to :class:`QueueService` and
+    ``service_options`` to :class:`FleetService`."""
+    folder = registry.path.parent
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        async with new_http_client() as http:
-            service = FleetService(registry, http, **service_options)
-            await service.start()
-            app.state.service = service
-            try:
-                yield
-            finally:
-                await service.stop()
+        engine = await open_database(database_url or default_database_url(folder))
+        try:
+            async with new_http_client() as http:
+                service = FleetService(registry, http, **service_options)
+                queue = QueueService(
+                    service, JobStore(engine), JobFiles(folder / "files"), **(queue_options or {})
+                )
+                await service.start()
+                await queue.start()
+                app.state.service = service
+                app.state.queue = queue
+                started = asyncio.create_task(on_started(service, queue)) if on_started else None
+                try:
+                    yield
+                finally:
+                    await cancel_and_wait(started)
+                    await queue.stop()
+                    await service.stop()
+        finally:
+            await engine.dispose()
 
     app = FastAPI(
         title="KyberCore",
@@ -94,7 +127,7 @@ def create_app(
         hosts=allowed_hosts or HostAllowlist(),
         upload_limit=MAX_UPLOAD_BYTES,
     )
-    for module in (fleet, printers, files, ws, session):
+    for module in (fleet, printers, files, jobs, ws, session):
         app.include_router(module.router)
     add_docs(app)
 

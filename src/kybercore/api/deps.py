@@ -1,5 +1,5 @@
-"""What the routers share: the fleet service, the role each route needs, and the JSON
-response class.
+"""What the routers share: the fleet service, the job queue, the role each route needs,
+and the JSON response class.
 """
 
 from __future__ import annotations
@@ -11,8 +11,10 @@ from fastapi import Depends
 from fastapi.responses import JSONResponse
 from starlette.requests import HTTPConnection
 
+from kybercore.api.auth import Identity
 from kybercore.api.security import require
 from kybercore.fleet.service import FleetService
+from kybercore.jobs.service import QueueService
 
 VIEWER: Final = require("viewer")
 OPERATOR: Final = require("operator")
@@ -27,6 +29,20 @@ def fleet_service(connection: HTTPConnection) -> FleetService:
 
 Service = Annotated[FleetService, Depends(fleet_service)]
 """A route parameter that receives the app's FleetService."""
+
+
+def queue_service(connection: HTTPConnection) -> QueueService:
+    """The app's QueueService, started by the lifespan."""
+    queue: QueueService = connection.app.state.queue
+    return queue
+
+
+Queue = Annotated[QueueService, Depends(queue_service)]
+"""A route parameter that receives the app's QueueService."""
+
+Operator = Annotated[Identity, OPERATOR]
+"""A route parameter: the caller, who must hold the operator role (the queue records who
+did what)."""
 
 
 class ORJSONResponse(JSONResponse):

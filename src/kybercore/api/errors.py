@@ -57,6 +57,8 @@ _STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
     (LaunchError, 500),
 )
 _ACCESS: Final = {"unauthorized": 401, "forbidden": 403}
+NEVER_PRINTABLE: Final = "never_printable"
+"""The queue's refusal of a job no printer of the fleet could ever print."""
 
 
 def error_status(exc: KyberCoreError) -> tuple[int, str]:
@@ -65,6 +67,8 @@ def error_status(exc: KyberCoreError) -> tuple[int, str]:
         return _ACCESS[exc.code], exc.code
     if isinstance(exc, MoonrakerRpcError) and exc.rpc_code == 404:
         return 404, "not_found"  # a file or object the printer does not have
+    if isinstance(exc, ActionRejected) and exc.code == NEVER_PRINTABLE:
+        return 422, exc.code  # the job as asked, not the fleet's state, is what to change
     for kind, status in _STATUSES:
         if isinstance(exc, kind):
             return status, exc.code

@@ -11,7 +11,8 @@ the body is never read):
    (``/api/session``, where the browser logs in and out, is the exception).
 4. A body larger than its route allows: 413 ``too_large``, from ``Content-Length`` when
    declared, and from the bytes actually received otherwise (chunked bodies): only the
-   upload route (``POST /api/printers/{id}/files``) takes large bodies.
+   upload routes (``POST /api/printers/{id}/files`` and ``POST /api/jobs``) take large
+   bodies.
 
 Security headers go on every answer; a route that sets its own Content-Security-Policy
 (the API docs) keeps it.
@@ -37,7 +38,7 @@ MAX_BODY_BYTES: Final = 1024 * 1024
 
 SAFE_METHODS: Final = frozenset({"GET", "HEAD", "OPTIONS"})
 LOGIN_PATH: Final = "/api/session"
-_UPLOAD_PATH: Final = re.compile(r"/api/printers/[^/]+/files")
+_UPLOAD_PATH: Final = re.compile(r"/api/printers/[^/]+/files|/api/jobs")
 
 
 def same_origin(origin: str | None, host: str | None) -> bool:

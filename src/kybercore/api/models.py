@@ -108,7 +108,9 @@ class ReasonOut(BaseModel):
 
     code: str
     level: Literal["ok", "warn", "block"]
-    category: str
+    category: str = Field(
+        default="", description="What it is about (a printer check's kind); absent for the queue's."
+    )
     en: str
     es: str
 

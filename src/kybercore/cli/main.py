@@ -1,4 +1,5 @@
-"""The ``kybercore`` command: serve the dashboard, run a demo fleet, manage printers.
+"""The ``kybercore`` command: serve the dashboard, run a demo fleet, manage printers and
+the job queue.
 
 Only what every command needs is imported here; FastAPI, uvicorn and the simulator are
 imported by the commands that use them, so ``kybercore printers list`` starts fast.
@@ -10,6 +11,7 @@ import typer
 
 from kybercore import __version__
 from kybercore.cli import serve as serve_commands
+from kybercore.cli.jobs import jobs_app
 from kybercore.cli.output import console
 from kybercore.cli.printers import printers_app
 from kybercore.cli.tokens import tokens_app
@@ -20,6 +22,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.add_typer(printers_app, name="printers")
+app.add_typer(jobs_app, name="jobs")
 app.add_typer(tokens_app, name="tokens")
 for command in (serve_commands.serve, serve_commands.demo, serve_commands.sim):
     app.command()(command)

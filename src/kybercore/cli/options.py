@@ -29,3 +29,40 @@ AllowedHosts = Annotated[
         show_default=False,
     ),
 ]
+DatabaseUrl = Annotated[
+    str | None,
+    typer.Option(
+        "--database-url",
+        envvar="KYBERCORE_DATABASE_URL",
+        help="The job queue's database (default: SQLite kybercore.db beside printers.json), "
+        "e.g. postgresql+asyncpg://user@host/kybercore for several KyberCore processes.",
+        show_default=False,
+    ),
+]
+HeatingBudget = Annotated[
+    int,
+    typer.Option(
+        "--heating-budget",
+        min=0,
+        help="At most this many printers heating at once per power group (a printer's "
+        "location) when the queue starts prints; 0: no limit.",
+    ),
+]
+ServerUrl = Annotated[
+    str,
+    typer.Option(
+        "--url",
+        envvar="KYBERCORE_URL",
+        help="The running KyberCore to talk to.",
+    ),
+]
+Token = Annotated[
+    str | None,
+    typer.Option(
+        "--token",
+        envvar="KYBERCORE_TOKEN",
+        help="An access token (`kybercore tokens create`), when the server asks for one. "
+        "Prefer the variable: a flag lands in shell history.",
+        show_default=False,
+    ),
+]

@@ -1,4 +1,6 @@
-"""``kybercore printers list|add|edit|remove``: manage printers.json from a shell.
+"""``kybercore printers list|add|edit|remove``: manage printers.json from a shell; and
+``kybercore printers clear|hold|release``: the plate gate of a printer, on a running
+KyberCore (through its REST API, :mod:`kybercore.cli.remote`).
 
 Safe while the server runs: every change goes through :class:`PrinterRegistry`, which
 locks the file against the server's own writes, and the server picks the change up.
@@ -17,14 +19,16 @@ from pydantic import ValidationError
 from rich.table import Table
 from rich.text import Text
 
-from kybercore.cli.options import PrintersFile
+from kybercore.cli.options import PrintersFile, ServerUrl, Token
 from kybercore.cli.output import done, fail, print_table
+from kybercore.cli.remote import DEFAULT_URL, Remote, remote_errors
 from kybercore.errors import InvalidInput, KyberCoreError
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
 
 printers_app = typer.Typer(
-    help="List, add, edit and remove the printers in printers.json.",
+    help="List, add, edit and remove the printers in printers.json; clear, hold and "
+    "release their plates for the job queue.",
     no_args_is_help=True,
 )
 
@@ -216,6 +220,57 @@ def remove_printer(
     with _errors():
         registry.remove(printer_id)
     done(f"Removed printer '{printer_id}'.")
+
+
+PrinterIdArg = Annotated[str, typer.Argument(metavar="ID", help="The printer's id.")]
+
+
+@printers_app.command("clear")
+def clear_plate(
+    printer_id: PrinterIdArg,
+    good: Annotated[
+        bool | None,
+        typer.Option(
+            "--good/--bad",
+            help="--good: the copy counts as done; --bad: it goes back to the queue.",
+            show_default=False,
+        ),
+    ] = None,
+    cause: Annotated[str, typer.Option(help="Why the print is bad (optional).")] = "",
+    url: ServerUrl = DEFAULT_URL,
+    token: Token = None,
+) -> None:
+    """Say the plate of a printer awaiting a clear is empty, and how the print came out."""
+    if good is None:
+        raise fail("Say how the print came out: --good or --bad.", code=2)
+    verdict = "good" if good else "bad"
+    with remote_errors(), Remote(url, token) as remote:
+        remote.call(
+            "POST", f"/api/printers/{printer_id}/clear", json={"verdict": verdict, "cause": cause}
+        )
+    counted = "counted as done" if good else "sent back to the queue"
+    done(f"Cleared {printer_id}: the copy is {counted}; the printer takes the next one.")
+
+
+@printers_app.command("hold")
+def hold(
+    printer_id: PrinterIdArg,
+    reason: Annotated[str, typer.Option(help="Why, shown to everyone (e.g. 'nozzle change').")],
+    url: ServerUrl = DEFAULT_URL,
+    token: Token = None,
+) -> None:
+    """Keep the job queue off a printer until it is released."""
+    with remote_errors(), Remote(url, token) as remote:
+        remote.call("POST", f"/api/printers/{printer_id}/hold", json={"reason": reason})
+    done(f"Held {printer_id}: the queue sends it nothing until `kybercore printers release`.")
+
+
+@printers_app.command("release")
+def release(printer_id: PrinterIdArg, url: ServerUrl = DEFAULT_URL, token: Token = None) -> None:
+    """Give a held printer back to the job queue."""
+    with remote_errors(), Remote(url, token) as remote:
+        remote.call("POST", f"/api/printers/{printer_id}/release")
+    done(f"Released {printer_id}: the queue may send it the next copy.")
 
 
 def _registry(ctx: typer.Context) -> PrinterRegistry:

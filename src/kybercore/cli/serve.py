@@ -1,32 +1,47 @@
 """``kybercore serve``, ``demo`` and ``sim``: the commands that run servers and printers.
 
-Their heavy imports (FastAPI, uvicorn, the simulator) happen when they run, not when the
-``kybercore`` command starts.
+Their heavy imports (FastAPI, uvicorn, the simulator, the database) happen when they run,
+not when the ``kybercore`` command starts.
 """
 
 from __future__ import annotations
 
+import asyncio
 import gc
 import ipaddress
 import logging
 import os
+import shutil
 import signal
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from kybercore.cli.options import AllowedHosts, Host, Port, PrintersFile
+from kybercore.cli.options import (
+    AllowedHosts,
+    DatabaseUrl,
+    HeatingBudget,
+    Host,
+    Port,
+    PrintersFile,
+)
 from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
 from kybercore.registry.store import PrinterRegistry, default_printers_path, write_printers
 
 if TYPE_CHECKING:
+    from kybercore.api.app import OnStarted
     from kybercore.api.hosts import HostAllowlist
     from kybercore.api.security import Access
     from kybercore.fleet.advisor import AdvisorConfig
+    from kybercore.fleet.service import FleetService
+    from kybercore.jobs.service import QueueService
     from kybercore.sim.stack import PrinterStack
+
+log = logging.getLogger(__name__)
+DEFAULT_HEATING_BUDGET = 3
 
 
 def serve(
@@ -34,6 +49,8 @@ def serve(
     port: Port = 8000,
     printers_file: PrintersFile = None,
     allowed_host: AllowedHosts = None,
+    database_url: DatabaseUrl = None,
+    heating_budget: HeatingBudget = DEFAULT_HEATING_BUDGET,
     advisor_url: Annotated[
         str | None,
         typer.Option(
@@ -68,9 +85,21 @@ def serve(
         access = _access(path, host)
         ensure_port_free(port, host)
         registry = _open_registry(path)
+        database = database_url or _default_database(path)
+        _check_database(database)
     except KyberCoreError as exc:
         raise fail(exc.message) from None
-    _run_server(registry, host, port, access, hosts, advisor=advisor, log_level=log_level)
+    _run_server(
+        registry,
+        host,
+        port,
+        access,
+        hosts,
+        advisor=advisor,
+        log_level=log_level,
+        database_url=database,
+        heating_budget=heating_budget,
+    )
 
 
 def demo(
@@ -98,11 +127,18 @@ def demo(
             write_demo_printers(path, stacks)
             registry = _open_registry(path)
             access = _access(path, host)
+            _forget_demo_queue(path)
             status.stop()
             _print_fleet(stacks)
             console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
+            console.print(
+                "A few jobs are queued: open the Queue view to watch them dispatch, and clear "
+                "each printer's plate when its print is done."
+            )
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
-            _run_server(registry, host, port, access, _allowed_hosts(host, []))
+            _run_server(
+                registry, host, port, access, _allowed_hosts(host, []), on_started=_queue_demo_jobs
+            )
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     console.print("Stopped the dashboard and every virtual printer.")
@@ -173,6 +209,73 @@ def _allowed_hosts(host: str, names: list[str]) -> HostAllowlist:
     return HostAllowlist(bind=host, names=given)
 
 
+def _default_database(printers_file: Path) -> str:
+    from kybercore.db import default_database_url
+
+    return default_database_url(printers_file.parent)
+
+
+def _check_database(url: str) -> None:
+    """Open the queue's database once (creating or upgrading it) before serving, so a bad
+    URL or an unreachable server is one clear error line, not a failed start-up."""
+    from kybercore.db import open_database
+
+    async def check() -> None:
+        engine = await open_database(url)
+        await engine.dispose()
+
+    asyncio.run(check())
+
+
+def _forget_demo_queue(printers_file: Path) -> None:
+    """Each demo starts from its few queued jobs: the last run's queue is forgotten (the
+    demo's SQLite file beside printers.json and the job files)."""
+    from sqlalchemy.engine import make_url
+
+    database = make_url(_default_database(printers_file)).database
+    if database:
+        for suffix in ("", "-wal", "-shm", "-journal"):
+            Path(database + suffix).unlink(missing_ok=True)
+    shutil.rmtree(printers_file.parent / "files", ignore_errors=True)
+
+
+async def _queue_demo_jobs(fleet: FleetService, queue: QueueService) -> None:
+    """Queue the demo's jobs once its printers are ready (their limits read), so a
+    newcomer sees copies dispatch, plates awaiting a clear and a job waiting with its
+    reason. A job no demo printer could print (a fleet of one) is left out."""
+    from kybercore.errors import KyberCoreError
+    from kybercore.jobs.models import Requirements
+    from kybercore.sim.demo import DEMO_JOBS, sample_files
+
+    def ready(view: Any) -> bool:
+        return bool(
+            view["connection"] == "online"
+            and view["klippy_state"] == "ready"
+            and view["limits"] == "known"
+        )
+
+    for _ in range(240):
+        if all(ready(view) for view in fleet.views()):
+            break
+        await asyncio.sleep(0.5)  # poll: printers come up over seconds, bounded above
+    samples = dict(sample_files())
+    for job in DEMO_JOBS:
+        try:
+            await queue.add_job(
+                job.file,
+                samples[job.file],
+                quantity=job.copies,
+                priority=0,
+                not_before=None,
+                requirements=Requirements(material=job.material),
+                allow_mismatch=False,
+                max_attempts=3,
+                user="demo",
+            )
+        except KyberCoreError as exc:
+            log.warning("demo job %s not queued: %s", job.file, exc.message)
+
+
 def _run_server(
     registry: PrinterRegistry,
     host: str,
@@ -181,6 +284,9 @@ def _run_server(
     hosts: HostAllowlist,
     advisor: AdvisorConfig | None = None,
     log_level: str = "info",
+    database_url: str | None = None,
+    heating_budget: int = DEFAULT_HEATING_BUDGET,
+    on_started: OnStarted | None = None,
 ) -> None:
     import uvicorn
 
@@ -191,8 +297,18 @@ def _run_server(
     )
     # The HTTP client logs every request at INFO; too chatty for a farm of printers.
     logging.getLogger("httpx").setLevel(logging.WARNING)
+    app = create_app(
+        registry,
+        access,
+        allowed_hosts=hosts,
+        database_url=database_url,
+        queue_options={"heating_budget": heating_budget or None},
+        on_started=on_started,
+        advisor=advisor,
+        on_settled=freeze_heap,
+    )
     uvicorn.run(
-        create_app(registry, access, allowed_hosts=hosts, advisor=advisor, on_settled=freeze_heap),
+        app,
         host=host,
         port=port,
         log_level="warning",

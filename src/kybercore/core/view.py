@@ -193,6 +193,10 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         if thumbs
         else None
     )
+    if thumbnail and "/" in filename:
+        # Moonraker gives it relative to the file's own folder (the queue's uploads live in
+        # gcodes/kybercore/); the view says where it is under gcodes/.
+        thumbnail = f"{filename.rsplit('/', 1)[0]}/{thumbnail}"
     position = toolhead.get("position")
     if not isinstance(position, list) or not all(isinstance(v, (int, float)) for v in position):
         position = None

@@ -38,7 +38,7 @@ from kybercore.fleet.actions import (
 )
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
 from kybercore.fleet.hub import Hub
-from kybercore.fleet.sessions import FleetPrinter, Sessions
+from kybercore.fleet.sessions import FleetPrinter, Listener, Sessions
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
@@ -120,6 +120,11 @@ class FleetService:
         view = self.hub.view(printer_id)
         # Unpublished only when its first render failed: render here, to surface why.
         return view if view is not None else fuse(printer.config, printer.live)
+
+    def listen(self, listener: Listener) -> Callable[[], None]:
+        """Hear every printer's session events (status deltas, connection and Klippy
+        changes, notifications) as they are taken in; returns the function that stops it."""
+        return self.sessions.listen(listener)
 
     def config(self, printer_id: str) -> PrinterConfig:
         """A printer's configuration (with the API key: never send it to a client)."""

@@ -12,7 +12,7 @@ import contextlib
 import logging
 import time
 import weakref
-from collections.abc import Awaitable, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -46,6 +46,9 @@ LIMITS_RETRY_FIRST: Final = 1.0
 LIMITS_RETRY_CAP: Final = 60.0
 
 log = logging.getLogger(__name__)
+
+Listener = Callable[[str, SessionEvent], None]
+"""Told ``(printer_id, event)`` after the printer's live state took the event in."""
 
 
 @dataclass
@@ -81,6 +84,15 @@ class Sessions:
         self._hub = hub
         self._printers: dict[str, FleetPrinter] = {}
         self._background: set[asyncio.Task[Any]] = set()
+        self._listeners: list[Listener] = []
+
+    def listen(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener`` with every event of every current printer's session, after
+        the live state has taken it in; return the function that stops it. Listeners run
+        on the event loop for every status update (4 a second per printer): keep them
+        cheap, and spawn any I/O."""
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener)
 
     def get(self, printer_id: str) -> FleetPrinter:
         """The printer ``printer_id``; :class:`UnknownPrinter` when there is none."""
@@ -197,8 +209,21 @@ class Sessions:
             # Moonraker's 1 s process stats prove the printer is alive even when nothing
             # changes; let `updated_at` show that, at most every LAST_SEEN_STEP seconds.
             if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:
+                self._tell(printer, event)
                 return
         self._hub.mark(pid)
+        self._tell(printer, event)
+
+    def _tell(self, printer: FleetPrinter, event: SessionEvent) -> None:
+        """Hand the event to the listeners; a replaced printer's session is not news."""
+        pid = printer.config.id
+        if not self._listeners or self._printers.get(pid) is not printer:
+            return
+        for listener in list(self._listeners):
+            try:
+                listener(pid, event)
+            except Exception:
+                log.exception("%s: a fleet listener failed on %s", pid, type(event).__name__)
 
     def _klippy_changed(self, printer: FleetPrinter, state: str, message: str) -> None:
         printer.live.klippy_state = state

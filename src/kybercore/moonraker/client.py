@@ -251,7 +251,12 @@ class MoonrakerClient:
             "checksum": checksum,
             "print": "true" if start else "false",
         }
-        files = {"file": (filename, content, "application/octet-stream")}
+        folder, _, name = filename.rpartition("/")
+        if folder:
+            # Moonraker creates missing folders only from the ``path`` field; a folder in
+            # the file name alone fails with "Unable to save file".
+            data["path"] = folder
+        files = {"file": (name, content, "application/octet-stream")}
         response = await self._channel.send(
             "POST", "/server/files/upload", data=data, files=files, timeout=UPLOAD_TIMEOUT
         )
@@ -264,10 +269,23 @@ class MoonrakerClient:
 
     # -- history, console, webcams -----------------------------------------------------
 
-    async def history_list(self, limit: int = 50, start: int = 0) -> dict[str, Any]:
-        """Past jobs, newest first: ``{count, jobs: [...]}``."""
-        params = {"limit": str(limit), "start": str(start), "order": "desc"}
+    async def history_list(
+        self, limit: int = 50, start: int = 0, *, order: str = "desc"
+    ) -> dict[str, Any]:
+        """Past jobs, newest first (``order="asc"``: oldest first): ``{count, jobs: [...]}``.
+
+        Each job: ``{job_id, filename, status, start_time, end_time, print_duration, ...}``;
+        ``status`` is ``in_progress|completed|cancelled|error|klippy_shutdown|
+        klippy_disconnect|interrupted``."""
+        params = {"limit": str(limit), "start": str(start), "order": order}
         return await self._get_object("/server/history/list", params=params)
+
+    async def history_job(self, uid: str) -> dict[str, Any]:
+        """One past or running job by its history id (``job_id``, hex); a
+        :class:`MoonrakerRpcError` with ``rpc_code`` 404 when Moonraker has no such job."""
+        what = "GET /server/history/job"
+        result = await self._get_object("/server/history/job", params={"uid": uid})
+        return self._shapes.object(self._shapes.field(result, "job", what), what)
 
     async def history_totals(self) -> dict[str, Any]:
         """Totals over every job: ``{job_totals: {total_jobs, total_time, ...}}``."""

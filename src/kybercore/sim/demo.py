@@ -1,6 +1,8 @@
-"""A demo fleet: heterogeneous virtual printers, their printers.json and sample files.
+"""A demo fleet: heterogeneous virtual printers, their printers.json, sample files and
+the jobs the demo queues.
 
-Used by ``kybercore demo`` (printers + dashboard) and ``kybercore sim`` (printers only).
+Used by ``kybercore demo`` (printers + dashboard + a queue) and ``kybercore sim`` (printers
+only).
 One demo per data folder: a file lock keeps a second one from starting beside it, and
 the PIDs of a demo that died without cleaning up are stopped before a new one starts.
 """
@@ -94,6 +96,25 @@ def sample_files() -> list[tuple[str, bytes]]:
         for entry in folder.iterdir()
         if entry.name.endswith(".gcode")
     )
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    """A job ``kybercore demo`` queues: a sample file, its copies, the material it needs."""
+
+    file: str
+    copies: int
+    material: str
+
+
+DEMO_JOBS: Final = (
+    # Runs on the PLA printers, one copy each, the next one after each plate clear.
+    DemoJob("calibration_cube_20mm_pla.gcode", 4, "PLA"),
+    # Takes the PETG printer...
+    DemoJob("calibration_cube_10mm_petg.gcode", 2, "PETG"),
+    # ...so this one waits, and says why: PLA loaded elsewhere, the PETG printer busy.
+    DemoJob("tower_60mm_petg.gcode", 1, "PETG"),
+)
 
 
 def copy_samples(stack: PrinterStack) -> None:

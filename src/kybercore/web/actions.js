@@ -3,7 +3,9 @@
 import { api } from "./api.js";
 import { confirmDialog, modal, openMenu, toast } from "./dialogs.js";
 import { h } from "./dom.js";
+import { GATE_ACTIONS, gateAction } from "./gates.js";
 import { messageOf, reasonText, t } from "./i18n.js";
+import { gateState } from "./queue_data.js";
 import { can } from "./session.js";
 import { printers } from "./store.js";
 
@@ -22,6 +24,7 @@ const nameOf = (id) => printers.get(id)?.name || id;
 export async function onCardAction(id, action, opener) {
   if (action === "files" || action === "console") return panels.openDrawer(id, action);
   if (action === "more") return moreMenu(id, opener);
+  if (GATE_ACTIONS.has(action)) return gateAction(id, action);
   return runAction(id, action);
 }
 
@@ -43,6 +46,10 @@ function moreMenu(id, anchor) {
       item("set_temperature", "temp", { label: t("action.set_temperature_dots") }),
       item("firmware_restart", "restart", { danger: true }),
       item("restart", "restart", { danger: true }),
+      { separator: true },
+      gateState(id) === "available"
+        ? { label: t("gate.hold"), icon: "pause", disabled: !can("operator"), onSelect: () => gateAction(id, "hold") }
+        : { label: t("gate.release"), icon: "resume", disabled: !can("operator") || gateState(id) === "awaiting_clear", onSelect: () => gateAction(id, "release") },
       { separator: true },
       { label: t("action.edit"), icon: "edit", disabled: !can("admin"), onSelect: () => panels.editPrinter(id) },
       { label: t("action.remove"), icon: "remove", danger: true, disabled: !can("admin"), onSelect: () => panels.removePrinter(id) },

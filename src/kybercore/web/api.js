@@ -60,6 +60,19 @@ export const api = {
     request("POST", `/api/fleet/actions/${enc(action)}`, { ...params, printer_ids: ids }),
   checkMany: (action, ids, params = {}) =>
     request("POST", `/api/fleet/actions/${enc(action)}/check`, { ...params, printer_ids: ids }),
+  jobs: (finished = false) => request("GET", `/api/jobs?finished=${finished}`),
+  editJob: (id, changes) => request("PATCH", `/api/jobs/${enc(id)}`, changes),
+  cancelJob: (id, confirm = false) => request("DELETE", `/api/jobs/${enc(id)}?confirm=${confirm}`),
+  moveJob: (id, before) => request("POST", `/api/jobs/${enc(id)}/move`, { before }),
+  requeueJob: (id) => request("POST", `/api/jobs/${enc(id)}/requeue`),
+  why: (id) => request("GET", `/api/jobs/${enc(id)}/why`),
+  attempts: (id) => request("GET", `/api/jobs/${enc(id)}/attempts`),
+  queue: () => request("GET", "/api/queue"),
+  pauseQueue: (paused) => request("POST", "/api/queue", { paused }),
+  gates: () => request("GET", "/api/gates"),
+  clearPlate: (id, verdict, cause = "") => request("POST", `${printer(id)}/clear`, { verdict, cause }),
+  hold: (id, reason) => request("POST", `${printer(id)}/hold`, { reason }),
+  release: (id) => request("POST", `${printer(id)}/release`),
 };
 
 /**
@@ -67,9 +80,32 @@ export const api = {
  * onProgress(fraction) is called while the bytes go out. Returns {promise, abort}.
  */
 export function upload(id, file, { start = false, confirm = false, onProgress } = {}) {
+  const form = new FormData();
+  form.append("file", file, file.name);
+  form.append("start", start ? "true" : "false");
+  form.append("confirm", confirm ? "true" : "false");
+  return sendForm(`${printer(id)}/files`, form, onProgress);
+}
+
+/**
+ * Queue a job: its file and options ({quantity, material, tags: [...], ...}; empty values
+ * are left out). Returns {promise, abort}, as upload() does.
+ */
+export function uploadJob(file, fields, { onProgress } = {}) {
+  const form = new FormData();
+  form.append("file", file, file.name);
+  for (const [name, value] of Object.entries(fields)) {
+    for (const item of Array.isArray(value) ? value : [value]) {
+      if (item !== undefined && item !== null && item !== "") form.append(name, String(item));
+    }
+  }
+  return sendForm("/api/jobs", form, onProgress);
+}
+
+function sendForm(path, form, onProgress) {
   const xhr = new XMLHttpRequest();
   const promise = new Promise((resolve, reject) => {
-    xhr.open("POST", `${printer(id)}/files`);
+    xhr.open("POST", path);
     xhr.responseType = "json";
     xhr.upload.addEventListener("progress", (event) => {
       if (event.lengthComputable && onProgress) onProgress(event.loaded / event.total);
@@ -82,10 +118,6 @@ export function upload(id, file, { start = false, confirm = false, onProgress } 
     });
     xhr.addEventListener("error", () => reject(new ApiError(0, { code: "network", message: t("error.network") })));
     xhr.addEventListener("abort", () => reject(new ApiError(0, { code: "aborted", message: t("upload.aborted") })));
-    const form = new FormData();
-    form.append("file", file, file.name);
-    form.append("start", start ? "true" : "false");
-    form.append("confirm", confirm ? "true" : "false");
     xhr.send(form);
   });
   return { promise, abort: () => xhr.abort() };

@@ -3,6 +3,7 @@
 import { api } from "./api.js";
 import { h, icon, setAttr, setHidden, setText } from "./dom.js";
 import * as fmt from "./format.js";
+import { GateStrip } from "./gates.js";
 import { t } from "./i18n.js";
 import { can, currentSession } from "./session.js";
 import { staleAge, statusOf } from "./store.js";
@@ -146,6 +147,7 @@ export class Tile extends Card {
       hotendLabel: h("span", { class: "label" }),
       bedLabel: h("span", { class: "label" }),
       stale: h("p", { class: "stale", hidden: true }),
+      gate: new GateStrip(),
       actions: buildActions(),
     });
     r.thumbImg.addEventListener("error", () => {
@@ -159,6 +161,7 @@ export class Tile extends Card {
       h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.tags),
       h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.layer))),
       r.note,
+      r.gate.el,
       h(
         "div",
         { class: "temps" },
@@ -221,6 +224,7 @@ export class Tile extends Card {
     setText(r.bedTarget, targetText(p.bed));
     r.hotend.parentElement.classList.toggle("heating", (p.extruder?.target || 0) > 0);
     r.bed.parentElement.classList.toggle("heating", (p.bed?.target || 0) > 0);
+    r.gate.update(p, this.el);
     this.updateStale(p, now);
     updateActions(r.actions, p, this.memo);
   }
@@ -287,6 +291,7 @@ export class Row extends Card {
       bed: h("span", {}),
       location: h("span", {}),
       stale: h("small", { class: "stale", hidden: true }),
+      gate: new GateStrip(),
       actions: buildActions(),
     });
     const td = (cls, ...kids) => h("td", { class: cls }, ...kids);
@@ -296,7 +301,7 @@ export class Row extends Card {
       td("c-select", r.select),
       h("th", { class: "c-name", scope: "row" }, h("span", { class: "name-cell" }, h("span", { class: "dot", "aria-hidden": "true" }), h("span", { class: "name-box" }, r.name, r.model))),
       td("c-status", r.pill, r.stale),
-      td("c-job", h("span", { class: "job-line" }, r.file, r.pct), r.progress, r.note),
+      td("c-job", h("span", { class: "job-line" }, r.file, r.pct), r.progress, r.note, r.gate.el),
       td("c-eta", r.eta),
       td("c-temp", r.hotend),
       td("c-temp", r.bed),
@@ -329,6 +334,7 @@ export class Row extends Card {
     setHidden(r.note, !note);
     setText(r.hotend, `${heaterText(p.extruder)} ${targetText(p.extruder)}`.trim());
     setText(r.bed, `${heaterText(p.bed)} ${targetText(p.bed)}`.trim());
+    r.gate.update(p, this.el);
     this.updateStale(p, now);
     updateActions(r.actions, p, this.memo);
   }

@@ -70,6 +70,10 @@ const PATHS = {
   alert: "M12 3l10 18H2zM12 10v5M12 18h.01",
   refresh: "M20 12a8 8 0 1 1-3-6.2M20 4v5h-5",
   bolt: "M13 2L4 14h7l-1 8 9-12h-7z",
+  up: "M12 19V5M6 11l6-6 6 6",
+  down: "M12 5v14M6 13l6 6 6-6",
+  grip: "M9 6h.01M15 6h.01M9 12h.01M15 12h.01M9 18h.01M15 18h.01",
+  queue: "M4 6h10M4 12h10M4 18h7M17 14v6M14 17h6",
 };
 
 const SOLID = new Set(["pause", "resume", "cancel", "start", "bolt"]);

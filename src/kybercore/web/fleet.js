@@ -10,6 +10,8 @@ import { getLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
+import { initQueue, relabelQueue } from "./queue.js";
+import { refreshQueue } from "./queue_data.js";
 import { can, currentSession, loadSession, login, logout, needsLogin, onSessionChange } from "./session.js";
 import { printers, subscribe } from "./store.js";
 import { uploadDialog } from "./uploads.js";
@@ -99,10 +101,24 @@ function applySession() {
   $("add-printer").hidden = !can("admin");
 }
 
-/** Event frames: console lines, and the news an operator wants to hear about. */
+/** Printers or Queue, from the address (#queue), so either can be bookmarked. */
+function route() {
+  const page = location.hash === "#queue" ? "queue" : "fleet";
+  document.body.dataset.page = page;
+  $("queue-view").hidden = page !== "queue";
+  $("fleet").hidden = page !== "fleet";
+  document.querySelector(".toolbar").hidden = page !== "fleet";
+  for (const link of document.querySelectorAll("[data-page]")) {
+    if (link.dataset.page === page) link.setAttribute("aria-current", "page");
+    else link.removeAttribute("aria-current");
+  }
+}
+
+/** Event frames: console lines, queue changes, and the news an operator wants to hear about. */
 function onEvent(frame) {
   const name = printers.get(frame.printer)?.name || frame.printer;
-  if (frame.type === "gcode_response") onConsoleFrame(frame);
+  if (frame.type === "queue") refreshQueue();
+  else if (frame.type === "gcode_response") onConsoleFrame(frame);
   else if (frame.type === "connection" && frame.connection === "auth_failed") {
     toast({ kind: "error", title: name, message: `${t("notify.auth_failed")} ${frame.message || ""}`.trim() });
   } else if (frame.type === "klippy" && (frame.state === "shutdown" || frame.state === "error")) {
@@ -116,6 +132,7 @@ function onEvent(frame) {
 /** Prints that finish or fail while the page is open. */
 function onStoreChange(change) {
   lastData = Date.now();
+  if (change.full) refreshQueue(0); // (re)connected: the queue may have moved meanwhile
   for (const { id, to } of change.transitions) {
     const p = printers.get(id);
     if (!p || (to !== "complete" && to !== "error")) continue;
@@ -172,6 +189,18 @@ async function main() {
     filesPanel: $("panel-files"),
     consolePanel: $("panel-console"),
   });
+  initQueue({
+    list: $("queue-list"),
+    empty: $("queue-empty"),
+    summary: $("queue-summary"),
+    count: $("queue-count"),
+    pausedNote: $("queue-paused"),
+    pause: $("queue-pause"),
+    add: $("queue-add"),
+    finished: $("queue-finished"),
+  });
+  window.addEventListener("hashchange", route);
+  route();
   $("add-printer").addEventListener("click", () => printerDialog());
   translateStatic(document); // the bulk bar and menus built above carry data-i18n too
   onLangChange(() => {
@@ -179,6 +208,7 @@ async function main() {
     rebuild();
     updateBulkBar();
     relabelDrawer();
+    relabelQueue();
   });
   document.addEventListener("keydown", (event) => {
     const typing = event.target.closest?.("input, textarea, select, [contenteditable]");
@@ -192,6 +222,7 @@ async function main() {
     applySession();
     rebuild();
     updateBulkBar();
+    relabelQueue();
   });
   onLangChange(applySession);
   $("logout").addEventListener("click", async () => {

@@ -3,7 +3,8 @@
 import { Row, Tile } from "./cards.js";
 import { h, setHidden, setText } from "./dom.js";
 import { t } from "./i18n.js";
-import { GROUPS, comparator, facets, matches, orderKey, printers, serverNow, statusOf, subscribe } from "./store.js";
+import { onQueueChange } from "./queue_data.js";
+import { AWAITING, GROUPS, comparator, facets, gates, matches, orderKey, printers, serverNow, statusOf, subscribe } from "./store.js";
 
 const VIEW_KEY = "kybercore.view";
 const cards = new Map(); // id -> Tile | Row, for the current mode
@@ -43,6 +44,7 @@ export function initOverview(elements, handlers) {
   els = elements;
   hooks = { ...hooks, ...handlers };
   subscribe(onStoreChange);
+  onQueueChange(onGatesChange);
   for (const container of [els.grid, els.tbody]) {
     container.addEventListener("click", onClick);
     container.addEventListener("change", onChange);
@@ -126,6 +128,13 @@ function onStoreChange(change) {
   schedule();
 }
 
+/** A plate gate changed: redraw those cards, and the order when the filter shows gates. */
+function onGatesChange(change) {
+  for (const id of change.gates) if (printers.has(id)) dirty.add(id);
+  if (change.gates.size && view.state === AWAITING) orderDirty = true;
+  schedule();
+}
+
 function schedule() {
   if (!frame) frame = requestAnimationFrame(flush);
 }
@@ -198,11 +207,14 @@ function fillSelect(select, values, anyLabel, current) {
 function updateCounts() {
   const counts = Object.fromEntries(GROUPS.map((g) => [g, 0]));
   for (const p of printers.values()) counts[statusOf(p).group] += 1;
-  const key = `${GROUPS.map((g) => counts[g]).join(",")}|${view.state}|${t("group.printing")}`;
+  // Plates to clear, at a glance: a printer in it is also counted by its status.
+  counts[AWAITING] = [...gates.entries()].filter(([id, gate]) => gate.state === AWAITING && printers.has(id)).length;
+  const shown = [...GROUPS, AWAITING];
+  const key = `${shown.map((g) => counts[g]).join(",")}|${view.state}|${t("group.printing")}`;
   if (key === countsKey) return;
   countsKey = key;
   els.counts.replaceChildren(
-    ...GROUPS.map((group) =>
+    ...shown.map((group) =>
       h(
         "button",
         { type: "button", class: "count-chip", dataset: { group }, "aria-pressed": String(view.state === group), title: t("filter.only", { state: t(`group.${group}`) }) },

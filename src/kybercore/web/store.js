@@ -4,6 +4,12 @@
 /** id -> printer view, exactly as the backend sent it (deltas merged in). */
 export const printers = new Map();
 
+/** id -> the printer's plate gate in the job queue (queue_data.js keeps it); none: available. */
+export const gates = new Map();
+
+/** The filter value that shows the printers whose plate awaits a clear (not a status group). */
+export const AWAITING = "awaiting_clear";
+
 const listeners = new Set();
 let seq = null;
 let skew = 0; // server clock minus browser clock, in seconds (from heartbeats)
@@ -125,7 +131,9 @@ export function staleAge(p, now = serverNow()) {
 
 /** Whether a printer passes the filters {q, state, tag, location}. */
 export function matches(p, f) {
-  if (f.state && statusOf(p).group !== f.state) return false;
+  if (f.state === AWAITING) {
+    if (gates.get(p.id)?.state !== AWAITING) return false;
+  } else if (f.state && statusOf(p).group !== f.state) return false;
   if (f.tag && !(p.tags || []).includes(f.tag)) return false;
   if (f.location && p.location !== f.location) return false;
   if (f.q) {

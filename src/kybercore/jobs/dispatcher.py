@@ -1,0 +1,367 @@
+"""The dispatch loop: plan when something changed, reserve, then start each copy for real.
+
+A planning round runs when something that can change a decision happens: a printer's print
+state, Klippy or connection changed, a printer stopped (or started) heating, a job, a gate
+or the queue changed (:meth:`Dispatcher.wake`), plus a slow tick for ``not_before`` times.
+Nothing is polled fast. A round asks :func:`kybercore.jobs.rules.plan` what to start where,
+and reserves each assignment in the store (atomic: losing a race to another loop or
+process only means someone else dispatched that copy).
+
+Each reserved attempt then runs in its own task: upload the stored file under the
+attempt's unique name (no ``print`` flag), start it, and wait until Klippy's
+``print_stats`` shows ``printing`` that very file. Moonraker answering "ok" (or an upload
+answering 201) is never taken for a start: a start not seen within ``start_within`` seconds
+is ``failed_to_start``, which holds the printer with the reason and sends the copy back to
+the queue, to be retried elsewhere.
+
+The heating budget counts the printers heating now plus the starts in progress: a start
+counts from its reservation until the printer is seen heating (or, for a file that does not
+heat, until it prints), so a round never starts more than the budget allows before the
+first temperatures arrive.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from typing import Final
+
+from kybercore.aio import cancel_and_wait
+from kybercore.core.numbers import finite_number
+from kybercore.core.view import facts
+from kybercore.errors import (
+    ActionRejected,
+    KyberCoreError,
+    PrinterUnreachable,
+)
+from kybercore.fleet.service import FleetService
+from kybercore.fleet.sessions import FleetPrinter
+from kybercore.jobs.files import JobFiles
+from kybercore.jobs.models import Attempt, Gate, Job
+from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, is_heating, plan, power_group
+from kybercore.jobs.store import JobStore
+from kybercore.jobs.tracker import Tracker, seen
+from kybercore.moonraker.events import (
+    ConnectionChanged,
+    KlippyChanged,
+    SessionEvent,
+    StatusDelta,
+    StatusSnapshot,
+)
+from kybercore.moonraker.objects import Status
+
+log = logging.getLogger(__name__)
+
+TICK_SECONDS: Final = 30.0
+"""The slow tick: ``not_before`` times come due, and a safety check of every print."""
+RETRY_SECONDS: Final = 5.0
+"""After a round failed (the database away), the next one waits this long."""
+USAGE_DAYS: Final = 30
+"""Wear-levelling counts the print time of the last USAGE_DAYS days."""
+_EPOCH: Final = datetime(1970, 1, 1, tzinfo=UTC)
+
+
+class Dispatcher:
+    """Plans and starts the queue's copies on the fleet's printers."""
+
+    def __init__(
+        self,
+        fleet: FleetService,
+        store: JobStore,
+        files: JobFiles,
+        tracker: Tracker,
+        *,
+        heating_budget: int | None = 3,
+        start_within: float = 60.0,
+        tick: float = TICK_SECONDS,
+        clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+    ) -> None:
+        self._fleet = fleet
+        self._store = store
+        self._files = files
+        self._tracker = tracker
+        self.heating_budget = heating_budget
+        self.start_within = start_within
+        self._tick = tick
+        self._clock = clock
+        self._wake = asyncio.Event()
+        self._loop_task: asyncio.Task[None] | None = None
+        self._stop_listening: Callable[[], None] | None = None
+        self._runs: dict[str, asyncio.Task[None]] = {}
+        """Printer -> the task starting an attempt there."""
+        self._running: dict[int, str] = {}
+        """Attempt id -> its printer, while its start runs."""
+        self._warming: dict[str, float] = {}
+        """Printers that started a file that heats but were not seen heating yet, with the
+        loop time after which they stop counting against the budget."""
+        self._heating: dict[str, bool] = {}
+        self._starts_seen: dict[str, tuple[str, asyncio.Event, bool]] = {}
+        """Printer -> (upload name, set once print_stats shows it, whether it showed that
+        name before the start)."""
+        self.memo = Memo()
+        """Validation verdicts kept between rounds (the planner's cache)."""
+        self.rounds = 0
+        """Planning rounds run so far (tests and the bench read it)."""
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Listen to the fleet and run the loop."""
+        self._stop_listening = self._fleet.listen(self._hear)
+        self._loop_task = asyncio.create_task(self._loop(), name="queue-dispatcher")
+        self.wake()
+
+    async def stop(self) -> None:
+        """Stop planning and abandon the starts in progress (the next start of KyberCore
+        settles them from the printers, as after a crash)."""
+        if self._stop_listening is not None:
+            self._stop_listening()
+            self._stop_listening = None
+        await cancel_and_wait(self._loop_task)
+        self._loop_task = None
+        runs = list(self._runs.values())
+        for task in runs:
+            task.cancel()
+        await asyncio.gather(*runs, return_exceptions=True)
+
+    def wake(self) -> None:
+        """Something changed: plan again soon (many wakes make one round)."""
+        self._wake.set()
+
+    async def abandon(self, attempt_id: int) -> None:
+        """Stop starting ``attempt_id`` (its job was cancelled); no-op when not starting.
+        The attempt stays as it was: the caller ends it."""
+        printer = self._running.get(attempt_id)
+        task = self._runs.get(printer) if printer is not None else None
+        if task is not None:
+            await cancel_and_wait(task)
+
+    # -- the loop ----------------------------------------------------------------------
+
+    async def _loop(self) -> None:
+        while True:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), self._tick)
+            if not self._wake.is_set():
+                self._tracker.check_all()  # the slow tick: nothing may stay "printing"
+            self._wake.clear()
+            try:
+                await self.round()
+            except KyberCoreError as exc:
+                log.warning("queue: planning failed, retrying in %g s: %s", RETRY_SECONDS, exc)
+                await asyncio.sleep(RETRY_SECONDS)
+                self.wake()
+            except Exception:
+                log.exception("queue: planning failed; retrying in %g s", RETRY_SECONDS)
+                await asyncio.sleep(RETRY_SECONDS)
+                self.wake()
+
+    def now(self) -> datetime:
+        """The time the planner judges ``not_before`` by."""
+        return self._clock()
+
+    def usage_since(self) -> datetime:
+        """Where the print time wear-levelling counts starts."""
+        return self._clock() - timedelta(days=USAGE_DAYS)
+
+    async def round(self) -> Plan:
+        """One planning round: plan, reserve, start. Returns the plan it followed."""
+        self.rounds += 1
+        now = self._clock()
+        jobs = await self._store.jobs()
+        gates = await self._store.gates()
+        usage = await self._store.usage(self.usage_since())
+        paused = await self._store.queue_paused()
+        tried = {
+            job.id: await self._store.attempts_per_printer(job.id)
+            for job in jobs
+            if job.failures and job.state == "queued"
+        }
+        printers = self.snapshots(gates, usage)
+        decided = plan(
+            jobs,
+            printers,
+            heating_budget=self.heating_budget,
+            starting=self.starting(),
+            now=now,
+            paused=paused,
+            attempts_per_printer=tried,
+            memo=self.memo,
+        )
+        by_id = {job.id: job for job in jobs}
+        for assignment in decided.assignments:
+            if assignment.printer in self._runs:
+                continue
+            attempt = await self._store.reserve(assignment.job_id, assignment.printer)
+            if attempt is None:
+                continue  # another loop or process won that copy or printer
+            for warning in assignment.warnings:
+                log.warning("job %d on %s despite: %s", attempt.job_id, attempt.printer, warning)
+            self._launch(attempt, by_id[assignment.job_id])
+        return decided
+
+    def snapshots(
+        self, gates: dict[str, Gate], usage: dict[str, tuple[float, datetime | None]]
+    ) -> list[PrinterSnapshot]:
+        """Every printer as the planner sees it now."""
+        return [self._snapshot(p, gates, usage) for p in self._fleet.sessions.all()]
+
+    def _snapshot(
+        self,
+        printer: FleetPrinter,
+        gates: dict[str, Gate],
+        usage: dict[str, tuple[float, datetime | None]],
+    ) -> PrinterSnapshot:
+        config, live = printer.config, printer.live
+        seconds, last_used = usage.get(config.id, (0.0, None))
+        return PrinterSnapshot(
+            id=config.id,
+            facts=facts(config, live),
+            gate=gates.get(config.id) or Gate(config.id, "available", "", _EPOCH, None, ""),
+            tags=tuple(config.tags),
+            power_group=power_group(config),
+            heating=is_heating(live.status),
+            usage_seconds=seconds,
+            last_used=last_used,
+        )
+
+    def starting(self) -> set[str]:
+        """Printers whose start is in progress: they count against the heating budget."""
+        loop_now = asyncio.get_running_loop().time()
+        for printer_id, until in list(self._warming.items()):
+            if until < loop_now:
+                self._warming.pop(printer_id)
+        return {*self._runs, *self._warming}
+
+    # -- one attempt -------------------------------------------------------------------
+
+    def _launch(self, attempt: Attempt, job: Job) -> None:
+        self._tracker.driving(attempt)
+        self._running[attempt.id] = attempt.printer
+        task = asyncio.create_task(self._run(attempt, job), name=f"start:{attempt.upload_name}")
+        self._runs[attempt.printer] = task
+
+    async def _run(self, attempt: Attempt, job: Job) -> None:
+        abandoned = False
+        try:
+            attempt = await self._upload_and_start(attempt, job)
+        except ActionRejected as exc:
+            # The store refused a step: the attempt ended meanwhile. Whoever ended it
+            # owns what happens next.
+            log.info("%s: attempt %d stopped: %s", attempt.printer, attempt.id, exc)
+        except asyncio.CancelledError:
+            abandoned = True  # stop() or abandon(): the caller settles the attempt
+            raise
+        except Exception as exc:
+            log.exception("%s: starting attempt %d failed", attempt.printer, attempt.id)
+            attempt = await self._failed_to_start(attempt, f"internal error ({exc!r})")
+        finally:
+            self._runs.pop(attempt.printer, None)
+            self._running.pop(attempt.id, None)
+            self._starts_seen.pop(attempt.printer, None)
+            if not abandoned:
+                self._tracker.follow(attempt)
+                self.wake()
+
+    async def _upload_and_start(self, attempt: Attempt, job: Job) -> Attempt:
+        printer, name = attempt.printer, attempt.upload_name
+        attempt = await self._store.advance(attempt.id, "uploading")
+        try:
+            client = self._fleet.client(printer)
+            handle = await asyncio.to_thread(self._files.path(job.file.sha256).open, "rb")
+            try:
+                await client.upload(name, handle)
+            finally:
+                await asyncio.to_thread(handle.close)
+        except (KyberCoreError, OSError) as exc:
+            why = exc.message if isinstance(exc, KyberCoreError) else str(exc)
+            return await self._failed_to_start(attempt, f"the upload to {printer} failed: {why}")
+        attempt = await self._store.advance(attempt.id, "starting")
+        started = asyncio.Event()
+        # A printer may still show this very name from an earlier print (another database
+        # numbered its jobs the same): then only a running print proves the start.
+        shown = self._fleet.sessions.get(printer).live.status.get("print_stats", {})
+        self._starts_seen[printer] = (name, started, shown.get("filename") == name)
+        lost = ""
+        try:
+            await client.print_start(name)
+        except PrinterUnreachable as exc:
+            # It may have started or not: what the printer shows next decides.
+            lost = f" (the connection was lost while starting: {exc.message})"
+        except KyberCoreError as exc:
+            why = f"{printer} refused the start: {exc.message}"
+            return await self._failed_to_start(attempt, why)
+        self._check_started(printer)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(started.wait(), self.start_within)
+        if not started.is_set():
+            return await self._failed_to_start(
+                attempt,
+                f"{printer} accepted the start but was not printing '{name}' within "
+                f"{self.start_within:g} s{lost}",
+            )
+        if _heats(job) and not _target_set(self._fleet.sessions.get(printer).live.status):
+            loop_now = asyncio.get_running_loop().time()
+            self._warming[printer] = loop_now + self.start_within
+        job_id = self._tracker.job_id(name)
+        return await self._store.advance(attempt.id, "printing", moonraker_job_id=job_id)
+
+    async def _failed_to_start(self, attempt: Attempt, reason: str) -> Attempt:
+        log.warning("%s: attempt %d failed to start: %s", attempt.printer, attempt.id, reason)
+        return await self._store.finish(attempt.id, "failed_to_start", reason=reason)
+
+    # -- what the printers say ---------------------------------------------------------
+
+    def _hear(self, printer_id: str, event: SessionEvent) -> None:
+        if isinstance(event, StatusSnapshot | ConnectionChanged | KlippyChanged):
+            self._check_started(printer_id)
+            self.wake()
+        elif isinstance(event, StatusDelta):
+            delta = event.delta
+            if "print_stats" in delta or "webhooks" in delta:
+                self._check_started(printer_id)
+                if "state" in delta.get("print_stats", {}) or "webhooks" in delta:
+                    self.wake()
+            if "extruder" in delta or "heater_bed" in delta:
+                self._heaters_changed(printer_id)
+
+    def _check_started(self, printer_id: str) -> None:
+        expected = self._starts_seen.get(printer_id)
+        if expected is None:
+            return
+        name, started, shown_before = expected
+        live = self._fleet.sessions.get(printer_id).live
+        outcome = seen(live.status, live.klippy_state, live.klippy_message, name)
+        if outcome is not None and not (shown_before and outcome.ended):
+            started.set()
+
+    def _heaters_changed(self, printer_id: str) -> None:
+        if self.heating_budget is None:
+            return
+        status = self._fleet.sessions.get(printer_id).live.status
+        if printer_id in self._warming and _target_set(status):
+            del self._warming[printer_id]  # the printer's own heating counts from now on
+            self.wake()
+        heating = is_heating(status)
+        if self._heating.get(printer_id) != heating:
+            self._heating[printer_id] = heating
+            self.wake()
+
+
+def _heats(job: Job) -> bool:
+    """Whether the job's file sets a temperature (by its slicer metadata)."""
+    meta = job.file.meta
+    return any(
+        (finite_number(meta.get(key)) or 0) > 0
+        for key in ("first_layer_extr_temp", "first_layer_bed_temp")
+    )
+
+
+def _target_set(status: Status) -> bool:
+    return any(
+        (finite_number(status.get(heater, {}).get("target")) or 0) > 0
+        for heater in ("extruder", "heater_bed")
+    )
