@@ -24,7 +24,7 @@ from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.helpers import KyberCoreServer, travel_gcode, wait_for
-from tests.jobs.start_faults import StartSwallowingProxy
+from tests.jobs.start_faults import StartFaultProxy
 
 pytestmark = pytest.mark.integration
 
@@ -34,20 +34,23 @@ PRINT_WITHIN = 120.0
 
 @pytest.fixture(scope="module")
 def restart_printers(start_stack: Callable[..., PrinterStack]) -> dict[str, PrinterStack]:
-    """One printer for a long print, one for short ones, one behind the stand-in."""
-    return {name: start_stack(f"q-{name}") for name in ("long", "short", "unsure")}
+    """One printer for a long print, one for short ones, two behind stand-ins."""
+    return {name: start_stack(f"q-{name}") for name in ("long", "short", "unsure", "late")}
 
 
 @pytest.mark.timeout(600)
 async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
     restart_printers: dict[str, PrinterStack], tmp_path: Path
 ) -> None:
-    proxy = StartSwallowingProxy(restart_printers["unsure"].url, "swallow_start")
+    proxy = StartFaultProxy(restart_printers["unsure"].url, "swallow_start")
     await proxy.start()
+    late_proxy = StartFaultProxy(restart_printers["late"].url, "held_start")
+    await late_proxy.start()
     urls = {
         "long": restart_printers["long"].url,
         "short": restart_printers["short"].url,
         "unsure": proxy.url,
+        "late": late_proxy.url,
     }
     write_printers(
         tmp_path / "printers.json",
@@ -57,7 +60,7 @@ async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
     try:
         # In threads: they block, and the stand-in serves from this event loop.
         await asyncio.to_thread(server.start)
-        await asyncio.to_thread(server.wait_online, 3)
+        await asyncio.to_thread(server.wait_online, 4)
         async with httpx.AsyncClient(base_url=server.url, timeout=60) as api:
             short = await add_job(api, "short.gcode", travel_gcode(moves=4, feedrate=6000),
                                   printer="short", quantity=2)  # fmt: skip
@@ -72,6 +75,10 @@ async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
             await wait_for(lambda: attempt_is(api, unsure["id"], "starting"), PRINT_WITHIN,
                            "the unsure copy waiting for its start")  # fmt: skip
             assert proxy.starts_swallowed
+            late = await add_job(api, "late.gcode", travel_gcode(moves=4, feedrate=6000),
+                                 printer="late")  # fmt: skip
+            await wait_for(lambda: bool(late_proxy.starts_held), PRINT_WITHIN, "a start sent")
+            assert await attempt_is(api, late["id"], "starting")
             printing = (await attempts(api, long["id"]))[0]
             # Still printing when KyberCore dies (the print lasts ~20 s).
             stats = await print_stats(restart_printers["long"])
@@ -79,6 +86,15 @@ async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
 
             os.kill(server.pid, signal.SIGKILL)
             await asyncio.to_thread(server.stop)  # reaps it
+            # The start KyberCore sent reaches the printer only now: it prints while
+            # KyberCore is dead.
+            await late_proxy.release_starts()
+            (late_name,) = late_proxy.starts_held
+            await wait_for(
+                lambda: printing_file(restart_printers["late"], late_name),
+                PRINT_WITHIN,
+                "the late start printing",
+            )
 
             # The same printers.json, the same database beside it.
             await asyncio.to_thread(server.start)
@@ -88,6 +104,11 @@ async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
             ended = (await attempts(api, long["id"]))[0]
             assert ended["id"] == printing["id"]
             assert ended["moonraker_job_id"]
+            # The start sent before the kill is found printing, and followed to its end.
+            await wait_for(lambda: attempt_is(api, late["id"], "completed"), PRINT_WITHIN,
+                           "the late copy completed")  # fmt: skip
+            (late_attempt,) = await attempts(api, late["id"])
+            assert late_attempt["upload_name"] == late_name
             # The start nobody saw is settled from the printer: it never printed.
             await wait_for(lambda: attempt_is(api, unsure["id"], "failed_to_start"),
                            PRINT_WITHIN, "the unsure start settled")  # fmt: skip
@@ -116,6 +137,7 @@ async def test_a_kill_mid_print_and_mid_start_is_settled_and_the_gate_holds(
             assert (done["state"], done["done"]) == ("done", 2)
     finally:
         await asyncio.to_thread(server.stop)
+        await late_proxy.stop()
         await proxy.stop()
 
 
@@ -154,3 +176,9 @@ async def print_stats(stack: PrinterStack) -> dict[str, Any]:
         answer = await moonraker.get(f"{stack.url}/printer/objects/query?print_stats")
         stats: dict[str, Any] = answer.json()["result"]["status"]["print_stats"]
         return stats
+
+
+async def printing_file(stack: PrinterStack, filename: str) -> bool:
+    """Whether the printer prints (or printed) ``filename`` now."""
+    stats = await print_stats(stack)
+    return bool(stats["filename"] == filename and stats["state"] in ("printing", "complete"))
