@@ -17,6 +17,8 @@ Scenarios, each timed over ``--rounds`` rounds (p50 / p99 / max):
   too; every other figure is also given as a ratio to its p50.
 - **steady**: a round with the :class:`Memo` kept between rounds, as the dispatcher keeps it.
 - **cold**: a fresh memo every round (the first round after a start, or a queue of new files).
+- **why**: :func:`why` for one job needing a material: a round plus a line per printer
+  (``GET /api/jobs/{id}/why``).
 - **morning**: every printer idle and available and no heating budget: thousands of
   assignments in one round (the worst case for the planner's work per round), warm and cold.
 """
@@ -34,7 +36,7 @@ from typing import Any
 
 from kybercore.core.validation import PrinterFacts
 from kybercore.jobs.models import Gate, Job, JobFile, Requirements
-from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, plan
+from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, plan, why
 
 NOW = datetime(2026, 5, 1, 9, 0, tzinfo=UTC)
 BUDGET = 3
@@ -185,6 +187,10 @@ def main(count: int, jobs_count: int, rounds: int, seed: int) -> None:
         assert isinstance(result, Plan)
         free = sum(p.free for p in printers)
         row(name, times, base, f"{len(result.assignments)} starts, {free} free printers")
+    waiting = next(j for j in jobs if j.requirements.material and not j.requirements.printer)
+    times, lines = timed(rounds, lambda: why(waiting, printers, queue=jobs, heating_budget=BUDGET,
+                                             starting=starting, now=NOW, memo=kept))  # fmt: skip
+    row("why (one job, every printer)", times, base, f"{len(lines)} lines")  # type: ignore[arg-type]
     morning = snapshots(farm(count, random.Random(seed), all_free=True))
     starting = set()
     kept = Memo()

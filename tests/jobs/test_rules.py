@@ -556,7 +556,7 @@ def test_a_round_keeps_every_rule(
 PURE_MODULES = ("rules", "planner", "eligibility", "why", "reasons", "heating")
 PURE_IMPORTS = (
     "__future__", "collections", "collections.abc", "dataclasses", "datetime", "typing", "re",
-    "heapq",
+    "heapq", "itertools",
     "kybercore.core.validation", "kybercore.core.messages", "kybercore.core.numbers",
     "kybercore.jobs.models", "kybercore.registry.models",
     *(f"kybercore.jobs.{name}" for name in PURE_MODULES),

@@ -8,11 +8,11 @@ time in the usage window, then the least recently used, then the id. For a job t
 before, printers that ran it fewer times go first. A power group may have at most K
 printers heating at once, starts in progress included.
 
-Speed: a round over 5,000 printers and 10,000 jobs stays within milliseconds because
-printers that are interchangeable for every job (same facts and tags) are judged once as a
-kind, validation verdicts are kept in a :class:`Memo` between rounds, a kind is only
-validated when its best printer would be picked, and the round stops once no printer can
-take anything.
+Speed (``bench/dispatch.py``: 5,000 printers, 10,000 jobs): free printers that validation
+judges alike (same facts) form a kind, validated once per file; the kinds sit in a heap by
+their least-worn printer, shared by the jobs with the same requirements; a kind is validated
+only when its best printer would win; verdicts are kept in a :class:`Memo` between rounds;
+and the round stops once no printer can take anything.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import heapq
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
+from itertools import pairwise
 
 from kybercore.core.validation import PrinterFacts
 from kybercore.jobs.eligibility import (
@@ -61,6 +62,17 @@ def job_order(job: Job) -> tuple[int, float, int]:
     return (-job.priority, job.position, job.id)
 
 
+def in_order(jobs: Sequence[Job]) -> bool:
+    """Whether ``jobs`` are in queue order already (checked without building keys)."""
+    for a, b in pairwise(jobs):
+        if a.priority != b.priority:
+            if a.priority < b.priority:
+                return False
+        elif a.position > b.position or (a.position == b.position and a.id > b.id):
+            return False
+    return True
+
+
 def plan(
     jobs: Sequence[Job],
     printers: Sequence[PrinterSnapshot],
@@ -81,10 +93,12 @@ def plan(
     that job there; used for jobs with failures. ``memo``: keep one between rounds to
     reuse verdicts.
     """
-    queued = sorted((j for j in jobs if j.state == "queued" and j.left > 0), key=job_order)
+    queued = [j for j in jobs if j.state == "queued" and j.left > 0]
+    if not in_order(queued):  # the store lists them in order; sorting anyway costs more
+        queued.sort(key=job_order)
     if paused:
-        held = [line(QUEUE, "queue_paused")]
-        return Plan([], {j.id: held for j in queued})
+        held = line(QUEUE, "queue_paused")
+        return Plan([], {j.id: [held] for j in queued})
     waiting: dict[int, list[WhyLine]] = {}
     ready: list[Job] = []
     for job in queued:
