@@ -169,10 +169,6 @@ class Tracker:
         """Moonraker's history id of the print of ``upload_name``, when heard."""
         return self._job_ids.get(upload_name)
 
-    def live_on(self, printer_id: str) -> Attempt | None:
-        """The printer's unresolved attempt, as last known."""
-        return self._live.get(printer_id)
-
     def check_all(self) -> None:
         """Settle every printer with an unresolved attempt (start-up and the slow tick)."""
         for printer_id in list(self._live):
