@@ -1,5 +1,5 @@
 """FAULT-INJECTION stand-in — not Moonraker: a proxy in front of a REAL Moonraker that
-accepts print starts and never lets them happen.
+accepts print starts and never lets them happen, or lets them happen late.
 
 A real Moonraker that is told to start a print either starts it or says why not; the queue
 must also survive one that says yes and does nothing (a broken proxy, a firmware macro
@@ -14,6 +14,9 @@ Scenarios:
 ``queued_upload``  as above, and every upload answers 201 with ``print_started: false``,
                    ``print_queued: true``: what Moonraker answers when a file went to its
                    job queue instead of the printer.
+``held_start``     ``POST /printer/print/start`` waits until :meth:`release_starts`, then
+                   goes to the real Moonraker (the print starts then, late: after the
+                   caller may have given up, or died).
 """
 
 from __future__ import annotations
@@ -34,13 +37,14 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from kybercore.sim.stack import free_port
 
-SCENARIOS: Final = ("swallow_start", "queued_upload")
+SCENARIOS: Final = ("swallow_start", "queued_upload", "held_start")
+SWALLOWING: Final = ("swallow_start", "queued_upload")
 _HOP_HEADERS: Final = frozenset(
     {"host", "content-length", "transfer-encoding", "connection", "keep-alive", "upgrade"}
 )
 
 
-class StartSwallowingProxy:
+class StartFaultProxy:
     """FAULT-INJECTION stand-in — not Moonraker. See the module docstring."""
 
     def __init__(self, upstream: str, scenario: str) -> None:
@@ -51,6 +55,9 @@ class StartSwallowingProxy:
         self.port = free_port()
         self.starts_swallowed: list[str] = []
         """File names of the starts answered "ok" and dropped."""
+        self.starts_held: list[str] = []
+        """File names of the starts held (``held_start``)."""
+        self._released = asyncio.Event()
         self._http = httpx.AsyncClient(timeout=httpx.Timeout(300.0), trust_env=False)
         app = Starlette(
             routes=[
@@ -89,6 +96,7 @@ class StartSwallowingProxy:
 
     async def stop(self) -> None:
         """Stop serving and close the connections to the real Moonraker."""
+        self._released.set()  # a start still held is answered, never sent
         for upstream in list(self._upstreams):
             await upstream.close()  # ends its relay, so the server stops without cancelling
         self._server.should_exit = True
@@ -99,11 +107,27 @@ class StartSwallowingProxy:
 
     # -- HTTP --------------------------------------------------------------------------
 
+    async def release_starts(self) -> None:
+        """Send the held starts to the real Moonraker now (whoever asked for them may be
+        gone), and let every later one through."""
+        self._released.set()
+        for filename in self.starts_held:
+            answer = await self._http.post(
+                f"{self.upstream}/printer/print/start", params={"filename": filename}
+            )
+            answer.raise_for_status()
+
     async def _relay(self, request: Request) -> Response:
         path = "/" + request.path_params["path"]
         if path == "/printer/print/start" and request.method == "POST":
-            self.starts_swallowed.append(request.query_params.get("filename", ""))
-            return JSONResponse({"result": "ok"})
+            filename = request.query_params.get("filename", "")
+            if self.scenario != "held_start":
+                self.starts_swallowed.append(filename)
+                return JSONResponse({"result": "ok"})
+            if not self._released.is_set():
+                self.starts_held.append(filename)
+                await self._released.wait()
+                return JSONResponse({"result": "ok"})  # release_starts() sent it
         headers = {k: v for k, v in request.headers.items() if k.lower() not in _HOP_HEADERS}
         answer = await self._http.request(
             request.method,
@@ -135,7 +159,8 @@ class StartSwallowingProxy:
                     while True:
                         frame = await downstream.receive_text()
                         message = json.loads(frame)
-                        if message.get("method") == "printer.print.start":
+                        swallowing = self.scenario in SWALLOWING
+                        if message.get("method") == "printer.print.start" and swallowing:
                             params = message.get("params") or {}
                             self.starts_swallowed.append(str(params.get("filename", "")))
                             answer = {"jsonrpc": "2.0", "id": message.get("id"), "result": "ok"}

@@ -19,7 +19,7 @@ from kybercore.db import default_database_url
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import travel_gcode, wait_for
 from tests.jobs.live_queue import live_queue, printer_config
-from tests.jobs.start_faults import SCENARIOS, StartSwallowingProxy
+from tests.jobs.start_faults import SWALLOWING, StartFaultProxy
 
 pytestmark = pytest.mark.integration
 
@@ -42,12 +42,12 @@ def good_printer(start_stack: Callable[..., PrinterStack]) -> PrinterStack:
 
 
 @pytest.fixture
-async def standin() -> AsyncIterator[Callable[..., StartSwallowingProxy]]:
+async def standin() -> AsyncIterator[Callable[..., StartFaultProxy]]:
     """Start FAULT-INJECTION stand-ins in front of a real Moonraker; stopped after the test."""
-    started: list[StartSwallowingProxy] = []
+    started: list[StartFaultProxy] = []
 
-    async def start(upstream: PrinterStack, scenario: str) -> StartSwallowingProxy:
-        proxy = StartSwallowingProxy(upstream.url, scenario)
+    async def start(upstream: PrinterStack, scenario: str) -> StartFaultProxy:
+        proxy = StartFaultProxy(upstream.url, scenario)
         await proxy.start()
         started.append(proxy)
         return proxy
@@ -57,7 +57,7 @@ async def standin() -> AsyncIterator[Callable[..., StartSwallowingProxy]]:
         await proxy.stop()
 
 
-@pytest.mark.parametrize("scenario", SCENARIOS)
+@pytest.mark.parametrize("scenario", SWALLOWING)
 async def test_a_start_accepted_but_never_seen_is_retried_on_another_printer(
     scenario: str,
     behind_standins: PrinterStack,

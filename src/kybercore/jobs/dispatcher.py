@@ -103,8 +103,6 @@ class Dispatcher:
         name before the start)."""
         self.memo = Memo()
         """Validation verdicts kept between rounds (the planner's cache)."""
-        self.rounds = 0
-        """Planning rounds run so far (tests and the bench read it)."""
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -169,7 +167,6 @@ class Dispatcher:
 
     async def round(self) -> Plan:
         """One planning round: plan, reserve, start. Returns the plan it followed."""
-        self.rounds += 1
         now = self._clock()
         jobs = await self._store.jobs()
         gates = await self._store.gates()

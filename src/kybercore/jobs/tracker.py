@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from kybercore.core.numbers import finite_number
-from kybercore.errors import ActionRejected, KyberCoreError, MoonrakerRpcError
+from kybercore.errors import ActionRejected, KyberCoreError, MoonrakerRpcError, PrinterError
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.models import Attempt, AttemptState
 from kybercore.jobs.store import JobStore
@@ -169,10 +169,6 @@ class Tracker:
         """Moonraker's history id of the print of ``upload_name``, when heard."""
         return self._job_ids.get(upload_name)
 
-    def live_on(self, printer_id: str) -> Attempt | None:
-        """The printer's unresolved attempt, as last known."""
-        return self._live.get(printer_id)
-
     def check_all(self) -> None:
         """Settle every printer with an unresolved attempt (start-up and the slow tick)."""
         for printer_id in list(self._live):
@@ -187,8 +183,7 @@ class Tracker:
         if printer_id not in self._live:
             return
         if isinstance(event, StatusSnapshot | KlippyChanged) or (
-            isinstance(event, StatusDelta)
-            and ("print_stats" in event.delta or "webhooks" in event.delta)
+            isinstance(event, StatusDelta) and _news(event.delta)
         ):
             self.kick(printer_id)
 
@@ -202,8 +197,7 @@ class Tracker:
             return
         if isinstance(job.get("job_id"), str):
             self._job_ids[attempt.upload_name] = job["job_id"]
-        if change.get("action") == "finished":
-            self.kick(printer_id)
+        self.kick(printer_id)  # added: bind it; finished: settle it
 
     def kick(self, printer_id: str) -> None:
         """Settle the printer's attempt soon; one settling per printer at a time."""
@@ -253,11 +247,18 @@ class Tracker:
             return  # the next snapshot tells
         outcome = seen(live.status, live.klippy_state, live.klippy_message, attempt.upload_name)
         job_id = attempt.moonraker_job_id or self._job_ids.get(attempt.upload_name)
-        if outcome is None and printer.client is not None:
-            job = await self._history_job(printer.client, attempt.upload_name, job_id)
+        if printer.client is not None and (outcome is None or (outcome.ended and not job_id)):
+            # Not shown: how did it end? Or ended unbound (its start was heard by an
+            # earlier process): which history job was it?
+            try:
+                job = await self._history_job(printer.client, attempt.upload_name, job_id)
+            except PrinterError:
+                if outcome is None:
+                    raise
+                job = None
             if job is not None:
-                outcome = from_history(job)
                 job_id = str(job.get("job_id") or "") or job_id
+                outcome = outcome or from_history(job)
         if outcome is None:
             outcome = (
                 Outcome("failed_to_start", RESTARTED)
@@ -275,8 +276,10 @@ class Tracker:
             # It did start (an earlier process sent the start): it is a print of ours.
             attempt = await self._store.advance(attempt.id, "printing", moonraker_job_id=job_id)
         if not outcome.ended:
-            if outcome.state != attempt.state:
-                attempt = await self._store.advance(attempt.id, outcome.state)
+            if outcome.state != attempt.state or (job_id and job_id != attempt.moonraker_job_id):
+                attempt = await self._store.advance(
+                    attempt.id, outcome.state, moonraker_job_id=job_id
+                )
             self._live[attempt.printer] = attempt
             return
         await self._end(attempt, outcome, job_id)
@@ -324,3 +327,10 @@ class Tracker:
             if isinstance(job, dict) and job.get("filename") == upload_name:
                 return job
         return None
+
+
+def _news(delta: Status) -> bool:
+    """Whether a status update can change how a print stands: its state or file, or
+    Klippy's (``print_duration`` and the like change four times a second, and say nothing)."""
+    stats = delta.get("print_stats", {})
+    return "state" in stats or "filename" in stats or "webhooks" in delta
