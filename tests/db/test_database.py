@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import text
+from sqlalchemy import MetaData, text
 from sqlalchemy.engine import Connection
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
@@ -21,14 +21,25 @@ from kybercore.db.migrate import head_revision
 from kybercore.errors import ConfigError
 from kybercore.jobs.models import JobFile, NewJob
 from kybercore.jobs.store import JobStore
-from kybercore.jobs.tables import metadata
+from kybercore.jobs.tables import metadata as queue_tables
+from kybercore.ledger.audit import metadata as audit_tables
+from kybercore.ledger.tables import metadata as ledger_tables
 from kybercore.sim.stack import free_port
 
 NEW = NewJob(JobFile("0" * 64, "cube.gcode", 100), quantity=2)
 
 
+def _every_table() -> MetaData:
+    """The tables of every part that owns some (queue, ledger, audit), as one schema."""
+    schema = MetaData()
+    for part in (queue_tables, ledger_tables, audit_tables):
+        for table in part.tables.values():
+            table.to_metadata(schema)
+    return schema
+
+
 def _schema_drift(conn: Connection) -> list[object]:
-    return list(compare_metadata(MigrationContext.configure(conn), metadata))
+    return list(compare_metadata(MigrationContext.configure(conn), _every_table()))
 
 
 async def test_an_empty_database_is_migrated_to_the_schema_the_code_uses(
