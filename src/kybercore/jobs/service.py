@@ -11,13 +11,13 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from datetime import datetime
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Final
 
 from kybercore.errors import ActionRejected, KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.dispatcher import Dispatcher
 from kybercore.jobs.files import JobFiles
-from kybercore.jobs.models import Attempt, Gate, Job, NewJob, PlateVerdict, Requirements
+from kybercore.jobs.models import LIVE, Attempt, Gate, Job, NewJob, PlateVerdict, Requirements
 from kybercore.jobs.rules import PrinterSnapshot, WhyLine, never_printable, why
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker
@@ -25,6 +25,7 @@ from kybercore.jobs.tracker import Tracker
 log = logging.getLogger(__name__)
 
 Content = bytes | AsyncIterator[bytes] | BinaryIO
+_STARTS_MOVING_ON: Final = frozenset({"attempt_reserved", *(f"attempt_{s}" for s in LIVE)})
 
 
 class QueueService:
@@ -74,9 +75,11 @@ class QueueService:
         self.dispatcher.wake()
 
     def _changed(self, kind: str, payload: dict[str, Any]) -> None:
-        """The store committed a change: tell the browsers, and plan again."""
+        """The store committed a change: tell the browsers, and plan again unless it was
+        a start moving on (the dispatcher makes those, and frees nothing by them)."""
         self.fleet.hub.event({"type": "queue", "kind": kind, **payload})
-        self.dispatcher.wake()
+        if payload.get("event") not in _STARTS_MOVING_ON:
+            self.dispatcher.wake()
 
     # -- jobs --------------------------------------------------------------------------
 
