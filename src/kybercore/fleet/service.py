@@ -44,8 +44,10 @@ from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
 
-# How long an action that needs the printer's limits waits for them after a connect.
-LIMITS_WAIT: Final = 5.0
+# How long an action that needs the printer's limits waits for them after a connect: the
+# read takes well under a second idle, but a busy host (a farm reconnecting, a queue and a
+# ledger catching up) can take several; waiting is better than refusing.
+LIMITS_WAIT: Final = 15.0
 
 
 class FleetService:
