@@ -59,3 +59,16 @@ def test_serve_names_an_allowed_host_that_is_not_a_host_name(
     result = runner.invoke(app, ["serve", "--host", "0.0.0.0", "--printers-file", printers])
     assert result.exit_code == 1
     assert "--allowed-host 'bad/name' is not a host name" in result.output
+
+
+def test_serve_refuses_an_unusable_database_url_in_one_line(tmp_path: Path) -> None:
+    printers = str(tmp_path / "p.json")
+    port = str(free_port())
+    result = runner.invoke(
+        app, ["serve", "--printers-file", printers, "--port", port, "--database-url", "nonsense"]
+    )
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    error = next(line for line in result.output.splitlines() if "Error:" in line)
+    assert "The database URL is not a URL" in error
+    assert "postgresql+asyncpg://" in error

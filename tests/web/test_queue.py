@@ -90,7 +90,7 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     # It ends: the plate awaits a clear, shown on the tile and counted at a glance.
     good = card.get_by_role("button", name="Plate cleared, print good — Printer A")
     expect(good).to_be_visible(timeout=PRINT_WITHIN)
-    expect(card.locator(".gate-text")).to_contain_text("plate awaiting a clear since")
+    expect(card.locator(".gate-text")).to_contain_text("Plate to clear since")
     expect(page.locator('.count-chip[data-group="awaiting_clear"] strong')).to_have_text("1")
     assert api.get("/api/gates").json()["fleet-a"]["state"] == "awaiting_clear"
 
@@ -172,3 +172,24 @@ def test_jobs_are_reordered_by_dragging_explained_and_cancelled_with_a_confirmat
     ).to_be_visible()
     expect(rows).to_have_text(["second_in_line.gcode"])
     assert [j["id"] for j in jobs(api)] == [second]
+
+
+def test_a_printer_is_held_from_its_menu_and_released_from_its_tile(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client, clean_queue: None
+) -> None:
+    open_fleet(page, kybercore_server.url)
+    card = tile(page, "fleet-c")
+    card.locator("[data-action=more]").click()
+    page.get_by_role("menuitem", name="Hold from the queue…").click()
+    ask = page.get_by_role("dialog", name="Hold Printer C")
+    ask.get_by_role("button", name="Hold").click()
+    expect(ask.get_by_role("alert")).to_have_text("Say why: everyone sees it.")
+    ask.get_by_label("Reason").fill("nozzle change")
+    ask.get_by_role("button", name="Hold").click()
+    expect(card.locator(".gate-text")).to_have_text("Held: nozzle change")
+    gate = api.get("/api/gates").json()["fleet-c"]
+    assert (gate["state"], gate["reason"]) == ("held", "nozzle change")
+
+    card.get_by_role("button", name="Give Printer C back to the queue").click()
+    expect(card.locator(".gate")).to_be_hidden()
+    assert api.get("/api/gates").json()["fleet-c"]["state"] == "available"

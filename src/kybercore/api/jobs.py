@@ -55,7 +55,7 @@ _CREATE_BODY: Final = {
         "required": True,
         "content": {
             _MULTIPART: {"schema": UPLOAD_FORM_SCHEMA},
-            _JSON: {"schema": {"$ref": "#/components/schemas/JobFromPrinter"}},
+            _JSON: {"schema": JobFromPrinter.model_json_schema()},
         },
     }
 }

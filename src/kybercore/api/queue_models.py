@@ -204,17 +204,17 @@ class _Out(BaseModel):
 class RequirementsOut(_Out):
     """What a printer must have to run the job; null or empty means any."""
 
-    material: str | None
-    nozzle: float | None
-    model: str | None
-    tags: list[str]
+    material: str | None = Field(description="Filament the printer must have loaded.")
+    nozzle: float | None = Field(description="Nozzle diameter in mm.")
+    model: str | None = Field(description="Printer model, as in printers.json.")
+    tags: list[str] = Field(description="Tags the printer must all carry.")
     printer: str | None = Field(description="Pinned printer id.")
 
 
 class JobFileOut(_Out):
     """The job's file, stored once by KyberCore."""
 
-    sha256: str
+    sha256: str = Field(description="The content's hash: the file is stored once under it.")
     name: str = Field(description="The name it was uploaded with.")
     size: int = Field(description="Bytes.")
     meta: dict[str, Any] = Field(
@@ -226,71 +226,74 @@ class JobFileOut(_Out):
 class JobOut(_Out):
     """A job and its copies: done, in flight (printing or awaiting a clear) and left."""
 
-    id: int
+    id: int = Field(description="The job's id.")
     file: JobFileOut
-    quantity: int
+    quantity: int = Field(description="Good copies wanted.")
     done: int = Field(description="Copies cleared good.")
     in_flight: int = Field(description="Copies printing, or printed and awaiting a clear.")
     left: int = Field(description="Copies no printer has yet.")
     failures: int = Field(description="Attempts that failed or did not start.")
-    priority: int
+    priority: int = Field(description="Higher runs first.")
     position: float = Field(description="Order among jobs of the same priority (lower first).")
-    state: Literal["queued", "blocked", "done", "cancelled"]
+    state: Literal["queued", "blocked", "done", "cancelled"] = Field(
+        description="queued: copies to print or in flight; blocked: too many failed "
+        "attempts (requeue it); done: every copy cleared good; cancelled."
+    )
     reason: str = Field(description="Why it is blocked or cancelled.")
-    not_before: Instant | None
+    not_before: Instant | None = Field(description="No copy starts before this time.")
     requirements: RequirementsOut
-    allow_mismatch: bool
-    max_attempts: int
+    allow_mismatch: bool = Field(description="Dispatched even where the file disagrees.")
+    max_attempts: int = Field(description="Failed attempts before the job is blocked.")
     created_at: Instant
-    created_by: str
+    created_by: str = Field(description="Who queued it.")
 
 
 class AttemptOut(_Out):
     """One copy of a job on one printer."""
 
-    id: int
+    id: int = Field(description="The attempt's id.")
     job_id: int
     # Not "copy": a pydantic model has a method of that name.
     copy_: int = Field(
         validation_alias="copy", serialization_alias="copy", description="Which copy, 1..quantity."
     )
-    printer: str
+    printer: str = Field(description="The printer it runs on.")
     upload_name: str = Field(description="The file's unique name on the printer.")
     state: Literal[
         "pending", "uploading", "starting", "printing", "paused",
         "completed", "failed", "cancelled", "failed_to_start",
     ]  # fmt: skip
-    reason: str
+    reason: str = Field(description="Why it ended as it did (failed, did not start…).")
     moonraker_job_id: str | None = Field(description="Moonraker's history job id.")
     verdict: Literal["good", "bad"] | None = Field(description="The plate's verdict, once given.")
-    cause: str
-    user: str
+    cause: str = Field(description="Why the plate was bad, when the operator said.")
+    user: str = Field(description="Who (or what) acted on it last.")
     created_at: Instant
-    started_at: Instant | None
+    started_at: Instant | None = Field(description="When it started printing.")
     ended_at: Instant | None
-    print_seconds: float
+    print_seconds: float = Field(description="Print time as Moonraker reported it.")
 
 
 class GateOut(_Out):
     """Whether a printer's plate may receive the next print."""
 
-    printer: str
+    printer: str = Field(description="The printer's id.")
     state: Literal["available", "awaiting_clear", "held", "maintenance"] = Field(
         description="awaiting_clear: a print ended, an operator must clear the plate."
     )
-    reason: str
-    since: Instant
+    reason: str = Field(description="Why it is held, in maintenance or awaiting a clear.")
+    since: Instant = Field(description="When it entered this state.")
     attempt_id: int | None = Field(
         description="The attempt printing there, or the ended one whose plate awaits a clear."
     )
-    user: str
+    user: str = Field(description="Who put it in this state.")
 
 
 class WhyLineOut(_Out):
     """One reason a job is not running somewhere right now, in English and Spanish."""
 
     subject: str = Field(description="A printer id, 'power group X', or 'queue'.")
-    code: str
+    code: str = Field(description="A stable name of the reason (needs_material, awaiting_clear…).")
     en: str
     es: str
 
@@ -298,10 +301,10 @@ class WhyLineOut(_Out):
 class QueueState(BaseModel):
     """The queue at a glance."""
 
-    paused: bool
+    paused: bool = Field(description="No new copy starts while true.")
     queued: int = Field(description="Jobs with copies left or in flight.")
     blocked: int = Field(description="Jobs stopped after too many failed attempts.")
     copies_left: int = Field(description="Copies no printer has yet, over queued jobs.")
-    copies_in_flight: int
+    copies_in_flight: int = Field(description="Copies printing or awaiting a clear.")
     awaiting_clear: list[str] = Field(description="Printers whose plate awaits a clear.")
     held: list[str] = Field(description="Printers held or in maintenance.")

@@ -23,6 +23,13 @@ export function sinceText(iso) {
   return new Intl.DateTimeFormat(getLang(), options).format(when);
 }
 
+/** How the print on the plate ended ("completed", "failed: <why>"), in the UI's language. */
+function endedText(reason) {
+  const match = /^(completed|failed|cancelled)(?:: (.*))?$/s.exec(reason || "");
+  if (!match) return reason || "";
+  return [t(`gate.ended.${match[1]}`), match[2]].filter(Boolean).join(": ");
+}
+
 function gateButton(action, iconName, extra = "") {
   return h("button", { type: "button", class: `btn small ${extra}`.trim(), dataset: { action } }, icon(iconName), h("span"));
 }
@@ -49,7 +56,8 @@ export class GateStrip {
     if (state === "available") return;
     this.el.dataset.gate = state;
     const awaiting = state === "awaiting_clear";
-    const text = awaiting ? t("gate.awaiting", { time: sinceText(gate.since) }) : t(`gate.${state}`, { reason: gate.reason });
+    const since = t("gate.awaiting", { time: sinceText(gate.since) });
+    const text = awaiting ? [since, endedText(gate.reason)].filter(Boolean).join(" — ") : t(`gate.${state}`, { reason: gate.reason });
     setText(this.text, text);
     setAttr(this.el, "aria-label", `${p.name}: ${text}`);
     setHidden(this.good, !awaiting);

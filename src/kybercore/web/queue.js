@@ -57,6 +57,7 @@ function render() {
   setText(els.summary, state ? t("queue.summary", { jobs: state.queued, left: state.copies_left, flight: state.copies_in_flight, clear: state.awaiting_clear.length }) : "");
   setText(els.count, state && state.queued ? String(state.queued) : "");
   const seen = new Set();
+  const movable = queue.jobs.filter((j) => ACTIVE.has(j.state)).map((j) => j.id);
   let cursor = els.list.firstElementChild;
   for (const job of queue.jobs) {
     seen.add(job.id);
@@ -65,7 +66,7 @@ function render() {
       row = new JobRow(job.id);
       rows.set(job.id, row);
     }
-    row.update(job, operator);
+    row.update(job, operator, { first: movable[0] === job.id, last: movable.at(-1) === job.id });
     if (row.el === cursor) cursor = cursor.nextElementSibling;
     else els.list.insertBefore(row.el, cursor);
     if (expanded.has(job.id)) row.loadDetails(job);
@@ -128,16 +129,17 @@ class JobRow {
       r.grip,
       h("div", { class: "job-main" }, r.name, r.needs, r.note),
       h("div", { class: "job-copies" }, r.bar, r.copies),
-      h("label", { class: "job-priority" }, h("span", { class: "visually-hidden" }), r.priority),
+      h("label", { class: "job-priority" }, h("span", { class: "caption" }), r.priority),
       r.pill,
       h("div", { class: "job-actions" }, r.why, r.up, r.down, r.requeue, r.cancel),
       r.details,
     );
   }
 
-  update(job, operator) {
+  /** `place`: {first, last} among the jobs that can move. */
+  update(job, operator, place) {
     this.job = job;
-    const key = JSON.stringify([job, operator, queue.state?.paused, t("queue.why")]);
+    const key = JSON.stringify([job, operator, place, queue.state?.paused, t("queue.why")]);
     if (key === this.key) return;
     this.key = key;
     const r = this.refs;
@@ -160,7 +162,8 @@ class JobRow {
     setText(r.copies, t("queue.copies", { done: job.done, flight: job.in_flight, left: job.left, n: job.quantity }));
     if (document.activeElement !== r.priority) r.priority.value = String(job.priority);
     r.priority.disabled = !operator || !active;
-    setText(r.priority.previousElementSibling, t("queue.priority_of", { name }));
+    setText(r.priority.previousElementSibling, t("jobform.priority"));
+    setAttr(r.priority, "aria-label", t("queue.priority_of", { name }));
     setAttr(r.priority, "title", t("queue.priority"));
     r.pill.dataset.status = state.status;
     setText(r.pill, t(`queue.state.${state.key}`));
@@ -173,6 +176,8 @@ class JobRow {
       setHidden(button, !active);
       button.disabled = !operator;
     }
+    r.up.disabled ||= place.first;
+    r.down.disabled ||= place.last;
     r.requeue.disabled = !operator;
   }
 
