@@ -27,6 +27,7 @@ import contextlib
 import logging
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from typing import Final
 
 from kybercore.aio import cancel_and_wait
@@ -88,6 +89,7 @@ class Dispatcher:
         self._tick = tick
         self._clock = clock
         self._wake = asyncio.Event()
+        self._planning = asyncio.Lock()
         self._loop_task: asyncio.Task[None] | None = None
         self._stop_listening: Callable[[], None] | None = None
         self._runs: dict[str, asyncio.Task[None]] = {}
@@ -178,16 +180,23 @@ class Dispatcher:
             if job.failures and job.state == "queued"
         }
         printers = self.snapshots(gates, usage)
-        decided = plan(
-            jobs,
-            printers,
-            heating_budget=self.heating_budget,
-            starting=self.starting(),
-            now=now,
-            paused=paused,
-            attempts_per_printer=tried,
-            memo=self.memo,
-        )
+        # In a worker thread: a round is ~10 ms at 5,000 printers, but hundreds of ms when
+        # every printer is free (bench/dispatch.py), too long to hold the event loop. The
+        # lock keeps the memo to one round at a time.
+        async with self._planning:
+            decided = await asyncio.to_thread(
+                partial(
+                    plan,
+                    jobs,
+                    printers,
+                    heating_budget=self.heating_budget,
+                    starting=self.starting(),
+                    now=now,
+                    paused=paused,
+                    attempts_per_printer=tried,
+                    memo=self.memo,
+                )
+            )
         by_id = {job.id: job for job in jobs}
         for assignment in decided.assignments:
             if assignment.printer in self._runs:

@@ -55,9 +55,7 @@ class QueueService:
             heating_budget=heating_budget,
             start_within=start_within,
         )
-        # The store is built before the service that listens to it (the app and the CLI
-        # make it); it has one listener, and it is this service's.
-        store._on_change = self._changed
+        store.listen(self._changed)
 
     # -- lifecycle ---------------------------------------------------------------------
 

@@ -61,6 +61,11 @@ class JobStore:
         self._on_change = on_change
         self._clock = clock
 
+    def listen(self, on_change: Listener) -> None:
+        """Call ``on_change(kind, payload)`` after each commit (replaces any listener): the
+        queue service is built after the store it listens to."""
+        self._on_change = on_change
+
     # -- jobs and the queue ----------------------------------------------------------------
 
     async def create_job(self, new: NewJob, user: str) -> Job:
