@@ -350,6 +350,6 @@ async def test_usage_counts_print_time_since_a_moment_and_the_last_start(
         "p1": (40.0, datetime(2026, 1, 6, tzinfo=UTC)),
         "p2": (0.0, other.created_at),
     }
-    assert await store.attempts_per_printer(job.id) == {"p1": 2, "p2": 1}
+    assert (await store.attempts_per_printer([job.id]))[job.id] == {"p1": 2, "p2": 1}
     assert [a.id for a in await store.attempts(job.id, live_only=True)] == [other.id]
     assert [a.id for a in await store.attempts()] == [old.id, new.id, other.id]

@@ -174,11 +174,9 @@ class Dispatcher:
         gates = await self._store.gates()
         usage = await self._store.usage(self.usage_since())
         paused = await self._store.queue_paused()
-        tried = {
-            job.id: await self._store.attempts_per_printer(job.id)
-            for job in jobs
-            if job.failures and job.state == "queued"
-        }
+        tried = await self._store.attempts_per_printer(
+            [job.id for job in jobs if job.failures and job.state == "queued"]
+        )
         printers = self.snapshots(gates, usage)
         # In a worker thread: a round is ~10 ms at 5,000 printers, but hundreds of ms when
         # every printer is free (bench/dispatch.py), too long to hold the event loop. The

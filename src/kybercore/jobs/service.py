@@ -241,7 +241,7 @@ class QueueService:
             starting=dispatcher.starting(),
             now=dispatcher.now(),
             paused=await self.store.queue_paused(),
-            attempts_per_printer={job_id: await self.store.attempts_per_printer(job_id)},
+            attempts_per_printer=await self.store.attempts_per_printer([job_id]),
             memo=dispatcher.memo,
         )
 

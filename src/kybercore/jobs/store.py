@@ -13,7 +13,7 @@ The transactions' bodies are :mod:`~kybercore.jobs.store_jobs` (jobs, the queue)
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Collection
 from datetime import UTC, datetime
 from types import EllipsisType
 from typing import Any, TypeVar
@@ -223,13 +223,22 @@ class JobStore:
             )
         )
 
-    async def attempts_per_printer(self, job_id: int) -> dict[str, int]:
-        """How many attempts of the job each printer has had."""
+    async def attempts_per_printer(self, job_ids: Collection[int]) -> dict[int, dict[str, int]]:
+        """How many attempts of each job each printer has had (one query for all jobs)."""
+        if not job_ids:
+            return {}
         a = t.attempts.c
-        query = select(a.printer, func.count()).where(a.job_id == job_id).group_by(a.printer)
+        query = (
+            select(a.job_id, a.printer, func.count())
+            .where(a.job_id.in_(list(job_ids)))
+            .group_by(a.job_id, a.printer)
+        )
 
-        async def read(unit: Unit) -> dict[str, int]:
-            return {printer: count for printer, count in await unit.conn.execute(query)}
+        async def read(unit: Unit) -> dict[int, dict[str, int]]:
+            counts: dict[int, dict[str, int]] = {}
+            for job_id, printer, count in await unit.conn.execute(query):
+                counts.setdefault(job_id, {})[printer] = count
+            return counts
 
         return await self._read(read)
 
