@@ -11,6 +11,8 @@ want_test=0
 # postgresql: the queue's tests run on a PostgreSQL server they start (tests/db/postgres.py).
 apt_packages=(libusb-dev gcc python3-venv)
 [ "$want_test" = 1 ] && apt_packages+=(chromium postgresql)
+# npm: the dashboard's checks (ESLint, tsc) and axe-core, pinned in package-lock.json.
+if [ "$want_test" = 1 ] && ! command -v npm >/dev/null; then apt_packages+=(nodejs npm); fi
 missing=()
 for pkg in "${apt_packages[@]}"; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
@@ -33,3 +35,6 @@ extras=""
   | grep -v "^WARNING: Location" || true
 # Moonraker and Klippy live in virtual environments of their own (their pins conflict).
 .venv/bin/python -c "from kybercore.sim.runtime import ensure_runtimes; ensure_runtimes()"
+if [ "$want_test" = 1 ]; then
+  npm ci --no-audit --no-fund --loglevel=error
+fi

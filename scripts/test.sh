@@ -7,4 +7,5 @@ cd "$(dirname "$0")/.."
 scripts/bootstrap.sh --test
 .venv/bin/ruff check src tests bench
 .venv/bin/mypy --strict src
+node_modules/.bin/eslint src/kybercore/web
 exec .venv/bin/python -m pytest "$@"

@@ -39,7 +39,9 @@ function updateActions(box, p, memo) {
   for (const button of box.querySelectorAll("[data-action]")) {
     const action = button.dataset.action;
     const label = t(`action.${action}`);
-    setAttr(button, "aria-label", t("aria.onPrinter", { action: label, name: p.name }));
+    // The e-stop's name starts with the word it shows (PARAR, STOP): voice control finds it.
+    const named = action === "emergency_stop" ? t("aria.estop", { short: t("action.estop_short"), action: label }) : label;
+    setAttr(button, "aria-label", t("aria.onPrinter", { action: named, name: p.name }));
     let enabled = true;
     if (action === "files") enabled = online;
     else if (action in actions) enabled = operator && Boolean(actions[action]);
@@ -180,7 +182,10 @@ export class Tile extends Card {
       setText(r.name, p.name);
       r.name.title = p.name;
     }
-    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) {
+      setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+      setAttr(r.progress, "aria-label", t("aria.progress", { name: p.name }));
+    }
     if (this.changed("meta", `${p.model}|${p.location}`)) setText(r.meta, [p.model, p.location].filter(Boolean).join(" · "));
     if (this.changed("status", `${status.group}|${status.key}|${t(status.key)}`)) {
       this.el.dataset.status = status.group;
@@ -314,7 +319,10 @@ export class Row extends Card {
     const r = this.refs;
     const status = statusOf(p);
     if (this.changed("name", p.name)) setText(r.name, p.name);
-    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+    if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) {
+      setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
+      setAttr(r.progress, "aria-label", t("aria.progress", { name: p.name }));
+    }
     setText(r.model, p.model);
     setText(r.location, p.location);
     if (this.changed("status", `${status.group}|${t(status.key)}`)) {

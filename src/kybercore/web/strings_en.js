@@ -149,6 +149,8 @@ export const en = {
   "preset.off": "All off",
   "stale.age": "Data {age} old",
   "aria.onPrinter": "{action} — {name}",
+  "aria.progress": "Print progress of {name}",
+  "aria.estop": "{action}",
   "aria.select": "Select {name}",
   "aria.more": "More actions — {name}",
   "action.pause": "Pause",

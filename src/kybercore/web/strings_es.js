@@ -149,6 +149,8 @@ export const es = {
   "preset.off": "Todo apagado",
   "stale.age": "Datos de hace {age}",
   "aria.onPrinter": "{action} — {name}",
+  "aria.progress": "Progreso de impresión de {name}",
+  "aria.estop": "{short}: {action}",
   "aria.select": "Seleccionar {name}",
   "aria.more": "Más acciones — {name}",
   "action.pause": "Pausar",
