@@ -90,15 +90,11 @@ def test_an_invalid_action_shows_the_backends_error(
     preview = page.get_by_role("dialog", name="Pause: 1 printer(s)")
     expect(preview.locator("[data-printer=fleet-b]")).to_contain_text("will refuse")
     expect(preview.locator("[data-printer=fleet-b]")).to_contain_text(reason["en"])
-    preview.get_by_role("button", name="Pause on 1").click()
-
-    # Sent anyway: the real answer, per printer, with its status and code.
-    results = page.get_by_role("dialog", name="Pause: results")
-    row = results.locator("[data-printer=fleet-b]")
-    expect(row).to_contain_text("409 · pause_not_printing")
-    expect(row).to_contain_text(reason["en"])
-    expect(results).to_contain_text("Done on 0 of 1 printers.")
-    results.get_by_role("button", name="Close", exact=True).click()
+    # Every selected printer refuses: nothing to run, and the dialog says so.
+    expect(preview).to_contain_text("None of the 1 printer(s) can do this now")
+    expect(preview.get_by_role("button", name=re.compile("^Pause on"))).to_have_count(0)
+    preview.get_by_role("button", name="Back").click()
+    expect(preview).to_be_hidden()
     assert job_state(api, "fleet-b") not in ("printing", "paused")
 
     # In Spanish, the console shows the backend's Spanish reason for a refused G-code.

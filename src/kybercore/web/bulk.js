@@ -152,20 +152,22 @@ export async function bulkAction(action) {
       text: c.reasons.filter((r) => r.level !== "ok").map(reasonText).join(" ") || t("check.ok_text"),
     })),
   );
-  const summary = h("p", { text: blocked ? t("bulk.some_blocked", { n: blocked }) : warned ? t("bulk.some_warn") : t("bulk.all_ok") });
-  const go = await modal({
-    title: t("bulk.preview_title", { action: label, n: ids.length }),
-    body: h("div", {}, summary, preview),
-    wide: true,
-    buttons: [
-      { label: t("action.back"), cancel: true },
-      { label: t("bulk.run", { action: label, n: ids.length }), value: "run", kind: CONFIRM.has(action) || action === "emergency_stop" ? "danger" : "primary" },
-    ],
-  });
+  const runnable = ids.length - blocked;
+  const note = runnable === 0 ? t("bulk.none_can", { n: ids.length }) : blocked ? t("bulk.some_blocked", { n: blocked, ok: runnable }) : warned ? t("bulk.some_warn") : t("bulk.all_ok");
+  const summary = h("p", { class: runnable === 0 ? "form-error" : "", text: note });
+  const buttons = [{ label: t("action.back"), cancel: true }];
+  // Nothing to run when every printer refuses: no button that would only fail N times.
+  if (runnable > 0) {
+    const kind = CONFIRM.has(action) || action === "emergency_stop" ? "danger" : "primary";
+    buttons.push({ label: t("bulk.run", { action: label, n: runnable }), value: "run", kind });
+  }
+  const go = await modal({ title: t("bulk.preview_title", { action: label, n: ids.length }), body: h("div", {}, summary, preview), wide: true, buttons });
   if (go !== "run") return;
   let results;
   try {
-    results = (await api.actMany(action, ids, { ...params, confirm: warned })).results;
+    // Only the printers the dry run cleared: the refusals were shown, with their reasons.
+    const targets = checks.filter((c) => c.level !== "block").map((c) => c.printer_id);
+    results = (await api.actMany(action, targets, { ...params, confirm: warned })).results;
   } catch (error) {
     toast({ kind: "error", title: label, message: messageOf(error) });
     return;

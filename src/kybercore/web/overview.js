@@ -285,8 +285,9 @@ export function selectWhere(test) {
   syncCheckboxes();
 }
 
+/** Select a status group; "ready" leaves out printers whose plate awaits a clear. */
 export function selectGroup(group) {
-  selectWhere((p) => statusOf(p).group === group);
+  selectWhere((p) => statusOf(p).group === group && !(group === "ready" && gates.get(p.id)?.state === AWAITING));
 }
 
 export function clearSelection() {

@@ -90,7 +90,7 @@ export function serverNow() {
 
 // -- derived state -------------------------------------------------------------------------
 
-export const GROUPS = ["printing", "paused", "error", "ready", "offline"];
+export const GROUPS = ["printing", "paused", "error", "done", "ready", "offline"];
 
 /** What the tile's color and the state filter use: {group, key (an i18n key)}. */
 export function statusOf(p) {
@@ -108,8 +108,9 @@ export function statusOf(p) {
   if (job === "printing") return { group: "printing", key: "status.printing" };
   if (job === "paused") return { group: "paused", key: "status.paused" };
   if (job === "error") return { group: "error", key: "status.print_error" };
-  if (job === "complete") return { group: "ready", key: "status.complete" };
-  if (job === "cancelled") return { group: "ready", key: "status.cancelled" };
+  // A finished or cancelled print may still be on the plate: not "ready" until cleared.
+  if (job === "complete") return { group: "done", key: "status.complete" };
+  if (job === "cancelled") return { group: "done", key: "status.cancelled" };
   return { group: "ready", key: "status.ready" };
 }
 
@@ -147,7 +148,7 @@ export function matches(p, f) {
   return true;
 }
 
-const GROUP_ORDER = { error: 0, paused: 1, printing: 2, ready: 3, offline: 4 };
+const GROUP_ORDER = { error: 0, paused: 1, printing: 2, done: 3, ready: 4, offline: 5 };
 const byName = (a, b) => a.name.localeCompare(b.name, undefined, { numeric: true }) || a.id.localeCompare(b.id);
 
 /** A comparator for the sort select. */
