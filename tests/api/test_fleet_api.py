@@ -224,7 +224,8 @@ async def test_edit_printers_over_rest_and_cli_while_running(
         str(kybercore_server.printers_file),
     ]
     subprocess.run(
-        [*cli, "add", "CLI Printer", "--url", offline_url, "--id", "from-cli", "--api-key", SECRET],
+        [*cli, "add", "CLI Printer", "--url", f"http://127.0.0.1:{free_port()}",
+         "--id", "from-cli", "--api-key", SECRET],
         check=True, capture_output=True,
     )  # fmt: skip
     await mirror.wait(lambda: "from-cli" in mirror.printers, what="CLI add picked up")
@@ -238,6 +239,7 @@ async def test_edit_printers_over_rest_and_cli_while_running(
 
     stored = read_printers(kybercore_server.printers_file)
     assert [p.id for p in stored] == ["fleet-a", "fleet-b", "fleet-c"]
+
     # The key went to printers.json and nowhere else.
     everything = json.dumps((await api.get("/api/printers")).json()) + "".join(mirror.raw)
     assert mirror.raw
@@ -367,3 +369,33 @@ async def test_a_broken_edit_on_disk_keeps_the_last_good_fleet(
         path.write_text(good)
     await mirror.wait(lambda: mirror.events("config")[-1]["ok"] is True, what="the reload")
     assert (await api.get("/api/health")).json()["config_error"] is None
+
+
+async def test_a_printer_is_saved_only_once_its_moonraker_answers_when_asked(
+    api: httpx.AsyncClient, kybercore_server: KyberCoreServer, printer: PrinterStack
+) -> None:
+    """``?check=true`` (the dashboard's add): a Moonraker that does not answer is a 503
+    saying why, and nothing is saved; one that answers is added. The same Moonraker twice
+    is refused whatever the check."""
+    before = kybercore_server.printers_file.read_text()
+    dead = f"127.0.0.1:{free_port()}"  # as people type it: no scheme
+    refused = await api.post(
+        "/api/printers?check=true", json={"id": "probe", "name": "Probe", "moonraker_url": dead}
+    )
+    assert refused.status_code == 503, refused.text
+    error = refused.json()["error"]
+    assert error["code"] == "printer_unreachable"
+    assert f"http://{dead}" in error["message"]
+    assert "Traceback" not in error["message"]
+    assert kybercore_server.printers_file.read_text() == before
+
+    body = {"id": "probe", "name": "Probe", "moonraker_url": printer.url.removeprefix("http://")}
+    try:
+        added = await api.post("/api/printers?check=true", json=body)
+        assert added.status_code == 201, added.text
+        assert added.json()["moonraker_url"] == printer.url
+        twice = await api.post("/api/printers", json={**body, "id": "probe-2"})
+        assert twice.status_code == 422, twice.text
+        assert twice.json()["error"]["reasons"][0]["code"] == "url_taken"
+    finally:
+        await api.delete("/api/printers/probe")

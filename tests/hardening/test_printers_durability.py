@@ -35,7 +35,10 @@ ROUNDS = 250  # the issue asks for at least 200
 MAX_KILL_DELAY = 0.030
 BEGIN_WITHIN = 30.0
 """Deadline for a writer to begin its first writes (idle: a few ms)."""
-URL = "http://127.0.0.1:9"  # discard port: nothing listens, nothing leaves loopback
+def _url(n: int) -> str:
+    """Printer ``n``'s Moonraker, one per printer: the discard port of a loopback address of
+    its own (nothing listens, nothing leaves loopback)."""
+    return f"http://127.0.{n // 200}.{n % 200 + 1}:9"
 
 State = dict[str, str]
 """printer id -> notes (every write stamps the printer's notes with a unique value)."""
@@ -55,7 +58,8 @@ def _child(path: Path, round_no: int, ack_fd: int, seed: int) -> None:
         if len(ids) < 3 or (roll < 0.35 and len(ids) < 12):
             op = f"add {stamp} {stamp}"
             os.write(ack_fd, f"B {op}\n".encode())
-            registry.add(PrinterCreate(id=stamp, name=stamp, moonraker_url=URL, notes=stamp))
+            url = f"http://{stamp}.invalid:9"  # one Moonraker per printer; never dialled
+            registry.add(PrinterCreate(id=stamp, name=stamp, moonraker_url=url, notes=stamp))
         elif roll < 0.5:
             victim = rng.choice(ids)
             op = f"rm {victim} -"
@@ -191,19 +195,20 @@ async def test_server_and_cli_writing_at_once_lose_nothing(lone_server: KyberCor
     path = lone_server.printers_file
     seed = [f"seed-{n}" for n in range(CLI_EDITS)]
     async with httpx.AsyncClient(base_url=lone_server.url, timeout=30) as api:
-        for printer_id in seed:
-            body = {"id": printer_id, "name": printer_id, "moonraker_url": URL}
+        for n, printer_id in enumerate(seed):
+            body = {"id": printer_id, "name": printer_id, "moonraker_url": _url(n)}
             assert (await api.post("/api/printers", json=body)).status_code == 201
         # The CLI processes start first (they take ~1 s to import) and overlap the API writes.
         cli = [
-            _cli(path, "add", f"CLI {n}", "--id", f"cli-{n}", "--url", URL) for n in range(CLI_ADDS)
+            _cli(path, "add", f"CLI {n}", "--id", f"cli-{n}", "--url", _url(1000 + n))
+            for n in range(CLI_ADDS)
         ]
         cli += [_cli(path, "edit", pid, "--notes", f"cli-edit-{pid}") for pid in seed]
 
         # The server keeps writing until every CLI process is done: the writes overlap.
         n = 0
         while n < SERVER_ADDS or any(proc.poll() is None for proc in cli):
-            body = {"id": f"api-{n}", "name": f"API {n}", "moonraker_url": URL}
+            body = {"id": f"api-{n}", "name": f"API {n}", "moonraker_url": _url(2000 + n)}
             answer = await api.post("/api/printers", json=body)
             assert answer.status_code == 201, answer.text
             if n < len(seed):

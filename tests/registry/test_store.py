@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import multiprocessing
 import os
@@ -31,9 +32,13 @@ from tests.helpers import wait_for
 SECRET = "s3cr3t-moonraker-key-0123456789"
 
 
+_ports = itertools.count(20000)
+
+
 def new(name: str, **fields: Any) -> PrinterCreate:
+    """A new printer on a Moonraker of its own (one Moonraker drives one printer)."""
     return PrinterCreate.model_validate(
-        {"name": name, "moonraker_url": "http://10.0.0.5:7125", **fields}
+        {"name": name, "moonraker_url": f"http://10.0.0.5:{next(_ports)}", **fields}
     )
 
 
@@ -82,7 +87,10 @@ def test_good_slug_accepted(good: str) -> None:
     [
         ("ftp://h:7125", "http:// or https://"),
         ("ws://h:7125", "http:// or https://"),
-        ("h:7125", "http:// or https://"),
+        ("mailto:h", "not a valid URL"),
+        ("http://h:7125/server/info", "without a path"),
+        ("http://proxy/printers/one/", "without a path"),
+        ("h:7125/#/", "fragment"),
         ("//h:7125", "http:// or https://"),
         ("http://user:pw@h:7125", "credentials"),
         ("http://user@h", "credentials"),
@@ -106,7 +114,9 @@ def test_bad_url_rejected(url: str, reason: str) -> None:
         ("http://h:7125/", "http://h:7125"),
         ("HTTPS://Printer.LAN", "https://printer.lan"),
         ("http://[::1]:7125/", "http://[::1]:7125"),
-        ("http://proxy/printers/one/", "http://proxy/printers/one"),
+        # What people type: host and port, completed to Moonraker's plain HTTP.
+        ("192.168.1.50:7125", "http://192.168.1.50:7125"),
+        ("Printer.local", "http://printer.local"),
     ],
 )
 def test_url_normalized(url: str, normalized: str) -> None:
@@ -127,16 +137,16 @@ def test_only_http_schemes(scheme: str) -> None:
 @given(
     host=st.from_regex(r"[a-z0-9]([a-z0-9-]{0,10}[a-z0-9])?(\.[a-z]{2,5}){0,2}", fullmatch=True),
     port=st.none() | st.integers(1, 65535),
-    path=st.lists(st.from_regex(r"[a-z0-9_-]{1,8}", fullmatch=True), max_size=3),
+    scheme=st.sampled_from(["http://", "HTTP://", ""]),
     slash=st.booleans(),
 )
 @settings(max_examples=100)
 def test_valid_urls_normalize_idempotently(
-    host: str, port: int | None, path: list[str], slash: bool
+    host: str, port: int | None, scheme: str, slash: bool
 ) -> None:
-    url = f"http://{host}" + (f":{port}" if port else "") + "".join(f"/{p}" for p in path)
-    normalized = config(moonraker_url=url + ("/" if slash else "")).moonraker_url
-    assert normalized == url
+    address = host + (f":{port}" if port else "")
+    normalized = config(moonraker_url=scheme + address + ("/" if slash else "")).moonraker_url
+    assert normalized == "http://" + address
     assert config(moonraker_url=normalized).moonraker_url == normalized
 
 
@@ -302,7 +312,7 @@ def test_a_stored_key_never_follows_the_printer_to_another_host(
 ) -> None:
     """The key is write-only: whoever edits the URL must give it again for a new host, or
     the next session would send it (X-Api-Key, identify) to a host of their choosing."""
-    added = registry.add(new("A", api_key=SECRET))
+    added = registry.add(new("A", api_key=SECRET, moonraker_url="http://10.0.0.5:7125"))
 
     def key_after(**fields: Any) -> str | None:
         stored = registry.update(added.id, PrinterUpdate.model_validate(fields))
@@ -313,8 +323,8 @@ def test_a_stored_key_never_follows_the_printer_to_another_host(
             registry.update(added.id, PrinterUpdate.model_validate({"moonraker_url": elsewhere}))
         assert {r["code"] for r in refused.value.reasons} == {"api_key_needed"}
         assert registry.get(added.id).moonraker_url == "http://10.0.0.5:7125"
-    # Same scheme, host and port (a new path prefix, another field): kept.
-    assert key_after(moonraker_url="http://10.0.0.5:7125/moonraker") == SECRET
+    # Same scheme, host and port (written with a trailing slash, another field): kept.
+    assert key_after(moonraker_url="http://10.0.0.5:7125/") == SECRET
     assert key_after(moonraker_url="http://10.0.0.5:7125", name="Renamed") == SECRET
     # Given again, or removed on purpose: the move is fine.
     assert key_after(moonraker_url="http://10.0.0.9:7125", api_key="new-key") == "new-key"
@@ -520,7 +530,8 @@ def test_threads_lose_nothing(path: Path) -> None:
 def _add_from_process(path: str, worker: int, count: int) -> None:
     registry = PrinterRegistry(path)
     for i in range(count):
-        registry.add(new(f"w{worker}", id=f"w{worker}-{i}"))
+        url = f"http://10.0.{worker}.{i}:7125"
+        registry.add(new(f"w{worker}", id=f"w{worker}-{i}", moonraker_url=url))
 
 
 def test_processes_lose_nothing(path: Path) -> None:
@@ -560,7 +571,7 @@ def test_broken_edit_reported_once_and_last_good_kept(
     registry.add(new("A", id="a"))
     good = registry.printers
     text = path.read_text()
-    path.write_text(text.replace("http://10.0.0.5:7125", "ftp://10.0.0.5"))
+    path.write_text(text.replace(registry.get("a").moonraker_url, "ftp://10.0.0.5"))
     assert registry.changed()
     with pytest.raises(ConfigError, match="field 'moonraker_url'"):
         registry.reload()
@@ -619,3 +630,25 @@ async def test_watch_reports_good_and_bad_edits(path: Path, registry: PrinterReg
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
+
+
+def test_one_moonraker_is_one_printer(registry: PrinterRegistry) -> None:
+    """A second printer on a Moonraker already in the fleet is refused, however the URL is
+    spelled, on add and on edit; printers.json is left as it was."""
+    first = registry.add(new("A", moonraker_url="http://10.0.0.5:7125"))
+    other = registry.add(new("B"))
+    before = registry.path.read_text()
+    for spelling in ("http://10.0.0.5:7125", "HTTP://10.0.0.5:7125/", "10.0.0.5:7125"):
+        with pytest.raises(InvalidInput, match="already uses") as refused:
+            registry.add(new("C", moonraker_url=spelling))
+        reason = refused.value.reasons[0]
+        assert reason["code"] == "url_taken"
+        assert first.id in reason["en"]
+        assert "ya usa" in reason["es"]
+        with pytest.raises(InvalidInput, match="already uses"):
+            registry.update(other.id, PrinterUpdate(moonraker_url=spelling))
+    assert registry.path.read_text() == before
+    # Another port of the same host is another Moonraker (several printers on one Pi).
+    registry.add(new("D", moonraker_url="http://10.0.0.5:7126"))
+    # Editing a printer without moving it is not a conflict with itself.
+    registry.update(first.id, PrinterUpdate(name="A2", moonraker_url="http://10.0.0.5:7125/"))

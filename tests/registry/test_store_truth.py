@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import time
 from pathlib import Path
@@ -21,11 +22,12 @@ from kybercore.registry.models import PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry, read_printers
 from tests.helpers import SLOW_CALLBACK, loop_watchdog
 
-URL = "http://127.0.0.1:9"  # discard port: nothing listens
+_hosts = itertools.count(1)
 
 
 def new(name: str) -> PrinterCreate:
-    return PrinterCreate(name=name, moonraker_url=URL)
+    # Port 9 (discard): nothing listens; a host of its own, as one Moonraker drives one printer.
+    return PrinterCreate(name=name, moonraker_url=f"http://127.0.0.{next(_hosts)}:9")
 
 
 def test_a_failed_folder_fsync_after_the_replace_says_the_file_changed(

@@ -8,7 +8,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from kybercore.sim.stack import PrinterStack
+from kybercore.sim.stack import PrinterStack, free_port
 from tests.helpers import KyberCoreServer
 from tests.web.conftest import ConsoleErrors
 from tests.web.support import ARTIFACTS, open_fleet, tile
@@ -30,16 +30,17 @@ def test_a_printer_added_through_the_form_appears(
     page: Page,
     kybercore_server: KyberCoreServer,
     api: httpx.Client,
-    fleet_stacks: list[PrinterStack],
+    printer: PrinterStack,
     console_errors: ConsoleErrors,
 ) -> None:
+    """A printer not yet in the fleet (``printer``: one Moonraker drives one printer)."""
     open_fleet(page, kybercore_server.url)
     page.get_by_role("button", name="Add printer").click()
     form = page.get_by_role("dialog", name="Add a printer")
     expect(form.get_by_label("Name")).to_be_focused()
 
     # Invalid input: the backend's 422 messages appear under the fields they are about.
-    console_errors.expect(r"status of 422 .*/api/printers\]$")
+    console_errors.expect(r"status of 422 .*/api/printers(\?check=true)?\]$")
     form.get_by_label("Moonraker URL").fill("ftp://printer.local")
     form.get_by_role("button", name="Add printer").click()
     url_error = form.locator("#pf-moonraker_url-error")
@@ -49,7 +50,8 @@ def test_a_printer_added_through_the_form_appears(
 
     form.get_by_label("Name").fill("Web Form Printer")
     form.get_by_label("Id", exact=True).fill(NEW_ID)
-    form.get_by_label("Moonraker URL").fill(fleet_stacks[2].url)
+    # As people type it, without http://: completed, then tested before it is saved.
+    form.get_by_label("Moonraker URL").fill(printer.url.removeprefix("http://"))
     form.get_by_label("Location").fill("Bench")
     form.get_by_label("Tags").fill("web, bench")
     form.get_by_role("button", name="Add printer").click()
@@ -62,7 +64,7 @@ def test_a_printer_added_through_the_form_appears(
     expect(card.locator(".tag")).to_have_text(["web", "bench"])
     stored = api.get(f"/api/printers/{NEW_ID}").json()
     assert stored["location"] == "Bench"
-    assert stored["moonraker_url"] == fleet_stacks[2].url
+    assert stored["moonraker_url"] == printer.url
 
     # A stored API key is never shown: the field stays empty and says so.
     secret = "kc-web-test-secret-key"
@@ -123,7 +125,7 @@ def test_the_backends_field_problems_appear_under_their_fields_in_spanish(
     open_fleet(page, kybercore_server.url)
     page.get_by_role("button", name="Añadir impresora").click()
     form = page.get_by_role("dialog", name="Añadir una impresora")
-    console_errors.expect(r"status of 422 .*/api/printers\]$")
+    console_errors.expect(r"status of 422 .*/api/printers(\?check=true)?\]$")
     form.get_by_label("URL de Moonraker").fill("ftp://printer.local")
     capabilities = form.locator("details.caps")
     capabilities.locator("summary").click()
@@ -167,3 +169,43 @@ def test_the_backends_field_problems_appear_under_their_fields_in_spanish(
     form.get_by_role("button", name="Volver").click()
     expect(form).to_be_hidden()
     assert len(api.get("/api/printers").json()) == 3
+
+
+@pytest.mark.usefixtures("forget_new_printer")
+def test_a_printer_that_does_not_answer_is_saved_only_when_asked(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    fleet_stacks: list[PrinterStack],
+    console_errors: ConsoleErrors,
+) -> None:
+    open_fleet(page, kybercore_server.url)
+    page.get_by_role("button", name="Add printer").click()
+    form = page.get_by_role("dialog", name="Add a printer")
+    form.get_by_label("Name").fill("Switched Off")
+    form.get_by_label("Id", exact=True).fill(NEW_ID)
+
+    # The same Moonraker as a printer of the fleet: refused, saying which printer has it.
+    console_errors.expect(r"status of 422 .*/api/printers\?check=true\]$")
+    form.get_by_label("Moonraker URL").fill(fleet_stacks[0].url)
+    form.get_by_role("button", name="Add printer").click()
+    expect(form.locator(".form-error")).to_contain_text("already uses")
+    expect(form.locator(".form-error")).to_contain_text("fleet-a")
+
+    # Nothing answers there: the connection test says so, and nothing is saved...
+    console_errors.expect(r"status of 503 .*/api/printers\?check=true\]$")
+    dead = f"http://127.0.0.1:{free_port()}"
+    form.get_by_label("Moonraker URL").fill(dead)
+    form.get_by_role("button", name="Add printer").click()
+    expect(form.locator(".form-error")).to_contain_text("The connection test failed")
+    anyway = form.get_by_label("Save anyway: connect when the printer comes online")
+    expect(anyway).to_be_focused()
+    assert api.get(f"/api/printers/{NEW_ID}").status_code == 404
+
+    # ... until the operator says to save it anyway: it is added, offline.
+    anyway.check()
+    form.get_by_role("button", name="Add printer").click()
+    expect(form).to_be_hidden()
+    expect(page.locator(".toast.warn")).to_contain_text("not reachable yet")
+    expect(tile(page, NEW_ID).locator(".badge.conn")).to_have_text("Offline", timeout=20_000)
+    assert api.get(f"/api/printers/{NEW_ID}").json()["moonraker_url"] == dead

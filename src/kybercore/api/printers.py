@@ -4,9 +4,9 @@ printer, their dry runs, and G-code.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Query
 from fastapi.responses import Response
 
 from kybercore.api.deps import ADMIN, OPERATOR, VIEWER, ORJSONResponse, Service
@@ -39,9 +39,19 @@ async def list_printers(service: Service) -> Response:
     responses={201: {"model": PrinterView}, **ERROR_RESPONSES},
     dependencies=[ADMIN],
 )
-async def add_printer(service: Service, new: PrinterCreate) -> Response:
+async def add_printer(
+    service: Service,
+    new: PrinterCreate,
+    check: Annotated[
+        bool,
+        Query(
+            description="Test the connection first: save only if Moonraker answers (the "
+            "dashboard asks this; resend without it to save a printer that is off)."
+        ),
+    ] = False,
+) -> Response:
     """Add a printer to printers.json and connect to it."""
-    return ORJSONResponse(await service.add_printer(new), status_code=201)
+    return ORJSONResponse(await service.add_printer(new, check=check), status_code=201)
 
 
 @router.get(

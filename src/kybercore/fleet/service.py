@@ -26,6 +26,7 @@ from kybercore.errors import (
     FileNotFound,
     KyberCoreError,
     MoonrakerRpcError,
+    PrinterTimeout,
 )
 from kybercore.fleet.actions import (
     ActionOutcome,
@@ -48,6 +49,8 @@ from kybercore.registry.store import PrinterRegistry
 # read takes well under a second idle, but a busy host (a farm reconnecting, a queue and a
 # ledger catching up) can take several; waiting is better than refusing.
 LIMITS_WAIT: Final = 15.0
+PROBE_TIMEOUT: Final = 8.0
+"""How long the connection test of a printer being added waits for Moonraker."""
 
 
 class FleetService:
@@ -142,11 +145,29 @@ class FleetService:
 
     # -- printers.json -----------------------------------------------------------------
 
-    async def add_printer(self, new: PrinterCreate) -> View:
-        """Add a printer to printers.json and connect to it."""
+    async def add_printer(self, new: PrinterCreate, *, check: bool = False) -> View:
+        """Add a printer to printers.json and connect to it; with ``check``, only once its
+        Moonraker answered (else the error says why, and nothing is saved)."""
+        if check:
+            await self.probe(
+                new.moonraker_url, new.api_key.get_secret_value() if new.api_key else None
+            )
         created = await asyncio.to_thread(self.registry.add, new)
         await self.sessions.apply(self.registry.printers)
         return self.view(created.id)
+
+    async def probe(self, url: str, api_key: str | None) -> dict[str, Any]:
+        """Moonraker's ``/server/info`` at ``url``, asked once with ``api_key``: the
+        connection test of a printer not (yet) in the fleet. Raises PrinterUnreachable,
+        PrinterTimeout or PrinterAuthFailed with what to do."""
+        client = MoonrakerClient(url, self._http, name=url, api_key=api_key)
+        try:
+            return await asyncio.wait_for(client.server_info(), PROBE_TIMEOUT)
+        except TimeoutError:
+            raise PrinterTimeout(
+                f"Moonraker at {url} did not answer within {PROBE_TIMEOUT:.0f} s. Check that "
+                "the printer is on and the address is right, or save it anyway."
+            ) from None
 
     async def update_printer(self, printer_id: str, patch: PrinterUpdate) -> View:
         """Edit a printer; its session restarts when the URL, key or enabled flag changed

@@ -29,13 +29,13 @@ from pydantic import (
 SLUG_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 MAX_URL_LENGTH = 2048
 URL_PATTERN = (
-    r"^[Hh][Tt][Tt][Pp][Ss]?://"
+    r"^(?:[Hh][Tt][Tt][Pp][Ss]?://)?"
     r"(?:\[[0-9A-Fa-f:.]+\]|[^\s\x00-\x1f/?#@:\[\]]+)(?::[0-9]*)?"
-    r"(?:/[^\s\x00-\x1f?#]*)?$"
+    r"/?$"
 )
 """What :func:`_check_url` accepts, for the OpenAPI schema (a port's range and an IPv6
-address's validity aside): http(s), a host or [IPv6], an optional port and path; no
-credentials, query, fragment, spaces or control characters."""
+address's validity aside): http(s) (``http://`` when left out), a host or [IPv6], an
+optional port; no path, credentials, query, fragment, spaces or control characters."""
 API_KEY_PATTERN = r"^[!-~]*$"
 """Printable ASCII without spaces (it travels in a header); empty means no key."""
 
@@ -62,8 +62,22 @@ def _check_url(url: str) -> str:
         raise ValueError("the URL has no host, e.g. http://192.168.1.50:7125")
     if parts.query or parts.fragment or url.endswith(("?", "#")):
         raise ValueError("the URL must not have a query string or fragment")
-    # A path is kept: Moonraker may sit behind a reverse proxy under a prefix.
-    return f"{scheme}://{parts.netloc.lower()}{parts.path.rstrip('/')}"
+    # Moonraker answers at the root of its host and port (/server/info, /websocket): a
+    # path is a pasted page address ("/server/info", Mainsail's "/#/"), never a prefix.
+    if parts.path.strip("/"):
+        raise ValueError(
+            f"the URL must be Moonraker's address only, without a path: remove "
+            f"'{parts.path}', e.g. http://192.168.1.50:7125"
+        )
+    return f"{scheme}://{parts.netloc.lower()}"
+
+
+def _complete_url(value: object) -> object:
+    # "192.168.1.50:7125" or "printer.local" is what people type: Moonraker speaks plain
+    # HTTP on a farm's network unless told otherwise.
+    if isinstance(value, str) and value and "://" not in value and not value.startswith("/"):
+        return "http://" + value
+    return value
 
 
 def server_of(url: str) -> tuple[str, str, int]:
@@ -91,6 +105,7 @@ Slug = Annotated[str, StringConstraints(pattern=SLUG_PATTERN)]
 Url = Annotated[
     str,
     StringConstraints(max_length=MAX_URL_LENGTH),
+    BeforeValidator(_complete_url),
     AfterValidator(_check_url),
     Field(json_schema_extra={"pattern": URL_PATTERN, "format": "uri"}),
 ]
@@ -120,8 +135,9 @@ _DOC = {
     "location.",
     "tags": "Short labels (1-32 characters each, at most 32) for grouping; duplicates dropped.",
     "notes": "Free text for the operators, up to 2000 characters.",
-    "moonraker_url": "Moonraker base URL: http or https, host, optional port and path "
-    "prefix; no credentials, query or fragment. Stored without trailing slash.",
+    "moonraker_url": "Moonraker's address: http or https, host, optional port "
+    "(`192.168.1.50:7125` is completed to `http://192.168.1.50:7125`); no path, "
+    "credentials, query or fragment. Stored without trailing slash.",
     "api_key": "Moonraker API key, sent as X-Api-Key. Write-only: never returned.",
     "enabled": "Whether KyberCore connects to this printer.",
     "capabilities": "Limits used to validate actions; missing values are read from "

@@ -217,6 +217,7 @@ class PrinterRegistry:
                 reason = {"code": "id_taken", "level": "block", "category": "input"}
                 raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
             printer = new.to_config(new.id or _free_id(slugify(new.name), taken))
+            _refuse_same_server(printer, printers)
             printers.append(printer)
             return printer
 
@@ -240,6 +241,7 @@ class PrinterRegistry:
                 and server_of(current.moonraker_url) != server_of(updated.moonraker_url)
             ):
                 raise _key_needed(updated.moonraker_url)
+            _refuse_same_server(updated, printers)
             printers[index] = updated
             return updated
 
@@ -321,6 +323,28 @@ def _index(printers: list[PrinterConfig], printer_id: str) -> int:
         if printer.id == printer_id:
             return index
     raise UnknownPrinter(printer_id)
+
+
+def _refuse_same_server(printer: PrinterConfig, printers: list[PrinterConfig]) -> None:
+    """One Moonraker drives one printer: a second entry for the same server would show the
+    same machine twice and let the queue send it two jobs at once."""
+    server = server_of(printer.moonraker_url)
+    other = next(
+        (p for p in printers if p.id != printer.id and server_of(p.moonraker_url) == server),
+        None,
+    )
+    if other is None:
+        return
+    english = (
+        f"Printer '{other.name}' ({other.id}) already uses {printer.moonraker_url}. One "
+        "Moonraker drives one printer: check the address, or edit the existing printer."
+    )
+    spanish = (
+        f"La impresora '{other.name}' ({other.id}) ya usa {printer.moonraker_url}. Un "
+        "Moonraker controla una sola impresora: revisa la dirección o edita la existente."
+    )
+    reason = {"code": "url_taken", "level": "block", "category": "input", "field": "moonraker_url"}
+    raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
 
 
 def _key_needed(url: str) -> InvalidInput:

@@ -46,7 +46,8 @@ export const api = {
   session: () => request("GET", "/api/session"),
   login: (token) => request("POST", "/api/session", { token }),
   logout: () => request("DELETE", "/api/session"),
-  addPrinter: (body) => request("POST", "/api/printers", body),
+  // check: save only if Moonraker answers (the form's connection test).
+  addPrinter: (body, { check = false } = {}) => request("POST", check ? "/api/printers?check=true" : "/api/printers", body),
   updatePrinter: (id, body) => request("PATCH", printer(id), body),
   removePrinter: (id) => request("DELETE", printer(id)),
   act: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}`, params),

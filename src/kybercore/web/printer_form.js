@@ -39,6 +39,8 @@ function buildForm(p) {
     field("tags", t("form.tags"), text((p?.tags || []).join(", ")), t("form.tags_hint")),
     field("notes", t("form.notes"), h("textarea", { rows: 2, text: p?.notes || "" })),
     h("label", { class: "check" }, h("input", { type: "checkbox", name: "enabled", checked: p ? p.enabled : true }), h("span", { text: t("form.enabled") })),
+    // Shown once the connection test failed: a printer that is off can still be added.
+    p ? null : h("label", { class: "check save-anyway", hidden: true }, h("input", { type: "checkbox", name: "save_anyway" }), h("span", { text: t("form.save_anyway") })),
     h(
       "details",
       { class: "caps" },
@@ -151,6 +153,16 @@ function showErrors(form, error) {
   (first || top).focus?.();
 }
 
+const UNREACHABLE = new Set(["printer_unreachable", "printer_timeout", "printer_auth_failed"]);
+
+/** The connection test failed: say why, and offer to save the printer anyway. */
+function offerSaveAnyway(form, error) {
+  showErrors(form, { message: t("form.unreachable", { detail: error.message }) });
+  const box = form.querySelector(".save-anyway");
+  box.hidden = false;
+  box.querySelector("input").focus();
+}
+
 /** Add a printer (p undefined) or edit one; resolves when the dialog closes. */
 export async function printerDialog(id) {
   const p = id ? printers.get(id) : undefined;
@@ -174,12 +186,15 @@ export async function printerDialog(id) {
           if (Object.keys(body).length) await api.updatePrinter(p.id, body);
           toast({ kind: "ok", title: values.name || p.name, message: t("form.saved") });
         } else {
-          const created = await api.addPrinter(createBody(values));
-          toast({ kind: "ok", title: created.name, message: t("form.added", { id: created.id }) });
+          const anyway = Boolean(form.elements.save_anyway?.checked);
+          const created = await api.addPrinter(createBody(values), { check: !anyway });
+          const message = t(anyway ? "form.added_unchecked" : "form.added", { id: created.id });
+          toast({ kind: anyway ? "warn" : "ok", title: created.name, message });
         }
         return "saved";
       } catch (error) {
-        showErrors(form, error);
+        if (!p && UNREACHABLE.has(error.code)) offerSaveAnyway(form, error);
+        else showErrors(form, error);
         return false;
       }
     },
