@@ -17,7 +17,7 @@ const ACTIONS = [
   ["home", "home"],
   ["set_temperature", "temp"],
   ["start", "start"],
-  ["firmware_restart", "restart"],
+  ["firmware_restart", "chip"],
   ["restart", "restart"],
 ];
 

@@ -66,12 +66,16 @@ function mount(uPlot, box, options, data) {
  * Lines over time. series: [{label, stroke (CSS variable), dash?}], data: [times (epoch
  * s), ...values] in uPlot's column layout (null: no value there).
  */
-export async function timeChart(box, { series, data, height = 180, unit = "" }) {
+export async function timeChart(box, { series, data, height = 180, unit = "", window = 0 }) {
   const uPlot = await loadCharts();
+  // A fixed window (the last `window` seconds) keeps minute ticks even while the data is
+  // only seconds long; uPlot would otherwise label fractions of a second.
+  const x = window ? { time: true, range: (u, min, max) => [max - window, max] } : { time: true };
+  const clock = (u, splits) => splits.map((v) => new Date(v * 1000).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" }));
   const options = {
     height,
-    scales: { x: { time: true } },
-    axes: [axis(), axis({ values: (u, splits) => splits.map((v) => `${v}${unit}`), size: 56 })],
+    scales: { x },
+    axes: [axis(window ? { values: clock, space: 60 } : {}), axis({ values: (u, splits) => splits.map((v) => `${v}${unit}`), size: 56 })],
     series: [
       {},
       ...series.map((s) => ({

@@ -48,7 +48,7 @@ export function setHidden(el, hidden) {
 
 const PATHS = {
   pause: "M7 5h3v14H7zM14 5h3v14h-3z",
-  resume: "M8 5l11 7-11 7z",
+  resume: "M5 5h3v14H5zM11 5l9 7-9 7z",
   cancel: "M6 6h12v12H6z",
   files: "M3 6a2 2 0 0 1 2-2h4l2 2h8a2 2 0 0 1 2 2v10a2 2 0 0 1-2 2H5a2 2 0 0 1-2-2z",
   console: "M4 5h16v14H4zM7 9l3 3-3 3M12 15h5",
@@ -56,7 +56,8 @@ const PATHS = {
   home: "M4 11l8-7 8 7v9h-5v-6H9v6H4z",
   temp: "M10 4a2 2 0 0 1 4 0v9a4 4 0 1 1-4 0z",
   restart: "M4 12a8 8 0 1 0 3-6.2M4 4v5h5",
-  start: "M8 5l11 7-11 7z",
+  start: "M6 3h8l4 4v14H6zM10 10l5 3.5-5 3.5z",
+  chip: "M7 7h10v10H7zM10 3v4M14 3v4M10 17v4M14 17v4M3 10h4M3 14h4M17 10h4M17 14h4",
   edit: "M4 20h4L19 9l-4-4L4 16zM13 7l4 4",
   remove: "M5 7h14M10 7V4h4v3M7 7l1 13h8l1-13",
   plus: "M12 5v14M5 12h14",

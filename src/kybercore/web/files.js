@@ -12,6 +12,8 @@ import { dropZone, uploadFailure, uploadTo } from "./uploads.js";
 
 const PAGE = 100;
 const META_PARALLEL = 3;
+/** Characters of a file name kept whole when it is cut ("…e_10mm_petg.gcode"). */
+const TAIL = 18;
 let state = null; // {id, panel, files, shown, observer, queue, active, body}
 
 /** Fill `panel` with printer `id`'s files and the upload zone. */
@@ -28,7 +30,17 @@ export function showFiles(panel, id) {
   const table = h(
     "table",
     { class: "files-table" },
-    h("thead", {}, h("tr", {}, ["files.name", "files.size", "files.modified", "files.estimated", ""].map((key) => h("th", { scope: "col", text: key ? t(key) : "" })))),
+    h(
+      "thead",
+      {},
+      h(
+        "tr",
+        {},
+        [["c-file", "files.name"], ["c-size", "files.size"], ["c-date", "files.modified"], ["c-est", "files.estimated"], ["c-print", "files.actions"]].map(([cls, key]) =>
+          h("th", { scope: "col", class: cls }, cls === "c-print" ? h("span", { class: "visually-hidden", text: t(key) }) : t(key)),
+        ),
+      ),
+    ),
     body,
   );
   const more = h("button", { type: "button", class: "btn small ghost", hidden: true, text: t("files.more"), onclick: () => render(state.shown + PAGE) });
@@ -115,6 +127,13 @@ async function deleteFile(id, path) {
   if (hadFocus && state?.id === id && !state.panel.contains(document.activeElement)) state.filter.focus();
 }
 
+/** A file name that, when cut, keeps its end: the part that tells `cube_petg_0.2mm.gcode`
+ * from `cube_pla_0.2mm.gcode` (the full name on hover, and in the buttons' names). */
+function fileName(path) {
+  const cut = Math.max(0, path.length - TAIL);
+  return h("span", { class: "file-name", title: path }, h("span", { class: "fn-head", text: path.slice(0, cut) }), h("span", { class: "fn-tail", text: path.slice(cut) }));
+}
+
 function canStart(id) {
   return can("operator") && Boolean(printers.get(id)?.actions?.start);
 }
@@ -166,7 +185,7 @@ function render(count) {
     const row = h(
       "tr",
       { dataset: { file: file.path } },
-      h("th", { scope: "row", class: "c-file" }, h("span", { class: "file-cell" }, thumb, h("span", { class: "file-name", text: file.path, title: file.path }))),
+      h("th", { scope: "row", class: "c-file" }, h("span", { class: "file-cell" }, thumb, fileName(file.path))),
       h("td", { class: "c-size", text: fmt.size(file.size) }),
       h("td", { class: "c-date", text: fmt.dateTime(file.modified) }),
       estimate,

@@ -234,6 +234,7 @@ export const en = {
   "files.name": "File",
   "files.size": "Size",
   "files.modified": "Modified",
+  "files.actions": "Actions",
   "files.estimated": "Est. time",
   "files.filter": "Filter files",
   "files.refresh": "Refresh",

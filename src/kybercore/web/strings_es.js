@@ -234,6 +234,7 @@ export const es = {
   "files.name": "Archivo",
   "files.size": "Tamaño",
   "files.modified": "Modificado",
+  "files.actions": "Acciones",
   "files.estimated": "Tiempo est.",
   "files.filter": "Filtrar archivos",
   "files.refresh": "Actualizar",
