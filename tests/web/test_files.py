@@ -117,7 +117,8 @@ def test_upload_one_file_to_several_printers_and_print_it(
     expect(preview).to_contain_text("Every selected printer can do this now.")
     preview.get_by_role("button", name="Cancel print on 2").click()
     results = page.get_by_role("dialog", name="Cancel print: results")
-    expect(results).to_contain_text("Done on 2 of 2 printers.")
+    # Klipper cancels once the move in progress ends (2.5 s here); a busy host adds more.
+    expect(results).to_contain_text("Done on 2 of 2 printers.", timeout=30_000)
     for printer_id in ("fleet-a", "fleet-b"):
         expect(results.locator(f"[data-printer={printer_id}]")).to_contain_text("Print cancelled.")
         expect(tile(page, printer_id).locator(".pill")).to_have_text("Cancelled")
