@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
+from typing import Literal
+
 import pytest
+from fastapi.exceptions import RequestValidationError
 
 from kybercore.api.errors import error_status
 from kybercore.errors import (
@@ -57,3 +61,37 @@ def test_reasons_are_given_at_construction() -> None:
     assert InvalidInput("bad", reasons=[reason]).reasons == (reason,)
     assert ActionRejected("no", code="x", reasons=[reason]).reasons == (reason,)
     assert PrinterUnreachable("down", printer="p", reasons=[reason]).reasons == (reason,)
+
+
+async def test_field_errors_come_in_spanish_too() -> None:
+    """What a Spanish form shows: our validators' own Spanish, pydantic's kinds translated
+    (an enum lists its values), never an English sentence inside a Spanish one."""
+    from pydantic import BaseModel, ValidationError
+
+    from kybercore.api.errors import validation_error_handler
+    from kybercore.registry.models import PrinterCreate
+
+    class Pick(BaseModel):
+        mode: Literal["tiles", "table"]
+        count: int
+
+    errors = []
+    for model, data in (
+        (PrinterCreate, {"name": "X", "moonraker_url": "ftp://x"}),
+        (PrinterCreate, {"name": "X", "moonraker_url": "http://x:7125/server/info"}),
+        (Pick, {"mode": "grid", "count": "many"}),
+    ):
+        with pytest.raises(ValidationError) as invalid:
+            model.model_validate(data)
+        errors += invalid.value.errors()
+    answer = await validation_error_handler(None, RequestValidationError(errors))  # type: ignore[arg-type]
+    listed = json.loads(answer.body)["error"]["fields"]
+    fields = {f["field"]: f["es"] for f in listed}
+    spanish = [f["es"] for f in listed]
+    assert spanish[0] == "la URL debe empezar por http:// o https://, no por 'ftp:'"
+    assert spanish[1].startswith("la URL debe ser solo la dirección de Moonraker, sin ruta")
+    assert fields["mode"] == "Debe ser uno de: 'tiles' o 'table'."
+    assert fields["count"] == "Debe ser un número entero."
+    for text in spanish:
+        assert "must" not in text
+        assert "should" not in text

@@ -87,11 +87,11 @@ def test_an_invalid_action_shows_the_backends_error(
     bar.locator("[data-bulk=pause]").click()
 
     # The dry run already says it will refuse, and why.
-    preview = page.get_by_role("dialog", name="Pause: 1 printer(s)")
+    preview = page.get_by_role("dialog", name="Pause: 1 printer")
     expect(preview.locator("[data-printer=fleet-b]")).to_contain_text("will refuse")
     expect(preview.locator("[data-printer=fleet-b]")).to_contain_text(reason["en"])
     # Every selected printer refuses: nothing to run, and the dialog says so.
-    expect(preview).to_contain_text("None of the 1 printer(s) can do this now")
+    expect(preview).to_contain_text("The printer cannot do this now")
     expect(preview.get_by_role("button", name=re.compile("^Pause on"))).to_have_count(0)
     preview.get_by_role("button", name="Back").click()
     expect(preview).to_be_hidden()

@@ -113,7 +113,7 @@ def test_upload_one_file_to_several_printers_and_print_it(
 
     # Cancel both from the bulk bar: dry run, confirmation, one result per printer.
     bar.locator("[data-bulk=cancel]").click()
-    preview = page.get_by_role("dialog", name="Cancel print: 2 printer(s)")
+    preview = page.get_by_role("dialog", name="Cancel print: 2 printers")
     expect(preview).to_contain_text("Every selected printer can do this now.")
     preview.get_by_role("button", name="Cancel print on 2").click()
     results = page.get_by_role("dialog", name="Cancel print: results")

@@ -39,6 +39,7 @@ from kybercore.errors import (
     PrinterUnreachable,
     UnknownPrinter,
 )
+from kybercore.registry.models import SPANISH
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +131,35 @@ _ES_FIELD_ERRORS: Final = {
     "less_than": "El valor es demasiado grande.",
     "less_than_equal": "El valor es demasiado grande.",
     "too_long": "Hay demasiados elementos.",
+    "enum": "Debe ser uno de: {expected}.",
+    "literal_error": "Debe ser uno de: {expected}.",
+    "int_parsing": "Debe ser un número entero.",
+    "int_type": "Debe ser un número entero.",
+    "float_parsing": "Debe ser un número.",
+    "float_type": "Debe ser un número.",
+    "bool_parsing": "Debe ser true o false.",
+    "bool_type": "Debe ser true o false.",
+    "string_type": "Debe ser un texto.",
+    "list_type": "Debe ser una lista.",
+    "dict_type": "Debe ser un objeto.",
+    "model_type": "Debe ser un objeto.",
+    "finite_number": "Debe ser un número finito.",
+    "datetime_parsing": "Debe ser una fecha y hora válida.",
+    "datetime_from_date_parsing": "Debe ser una fecha y hora válida.",
 }
+
+
+def _spanish(kind: str, english: str, context: Mapping[str, Any]) -> str:
+    """A field error in Spanish: the validator's own text, else the kind's, else a generic
+    one quoting the English."""
+    if context.get(SPANISH):
+        return str(context[SPANISH])
+    template = _ES_FIELD_ERRORS.get(kind)
+    if template is None:
+        return f"El valor no es válido ({english})."
+    # pydantic's "expected" reads "'a', 'b' or 'c'": in Spanish the list joins with "o".
+    expected = str(context.get("expected", "")).replace(" or ", " o ")
+    return template.replace("{expected}", expected)
 
 
 async def validation_error_handler(_request: Request, exc: RequestValidationError) -> Response:
@@ -141,7 +170,7 @@ async def validation_error_handler(_request: Request, exc: RequestValidationErro
         where = ".".join(str(part) for part in error.get("loc", ()) if part != "body") or "body"
         message = str(error.get("msg", "invalid"))
         kind = str(error.get("type", ""))
-        spanish = _ES_FIELD_ERRORS.get(kind, f"El valor no es válido ({message}).")
+        spanish = _spanish(kind, message, error.get("ctx") or {})
         fields.append({"field": where, "en": message, "es": spanish})
     summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
     return error_response(422, "invalid_input", f"Invalid request. {summary}", fields=fields)

@@ -25,6 +25,7 @@ from pydantic import (
     StringConstraints,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 SLUG_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
 MAX_URL_LENGTH = 2048
@@ -40,34 +41,62 @@ API_KEY_PATTERN = r"^[!-~]*$"
 """Printable ASCII without spaces (it travels in a header); empty means no key."""
 
 
+SPANISH = "_es"
+"""The context key of a validation error's Spanish text (read by the API's 422 answer)."""
+
+
+def _invalid(english: str, spanish: str) -> PydanticCustomError:
+    """A validation error in both of the dashboard's languages (the API's 422 carries both)."""
+    # pydantic fills "{name}" from the context in the template: a key no message holds.
+    return PydanticCustomError("invalid_value", english, {SPANISH: spanish})
+
+
 def _check_url(url: str) -> str:
     """Accept an http(s) URL with a host and nothing secret or variable; normalize it."""
     if any(c.isspace() or ord(c) < 32 for c in url):
-        raise ValueError("the URL must not contain spaces or control characters")
+        raise _invalid(
+            "the URL must not contain spaces or control characters",
+            "la URL no puede contener espacios ni caracteres de control",
+        )
     try:
         parts = urlsplit(url)
         parts.port  # noqa: B018 -- property access validates the port (raises ValueError)
     except ValueError as exc:
-        raise ValueError(f"not a valid URL ({exc})") from None
+        raise _invalid(f"not a valid URL ({exc})", f"la URL no es válida ({exc})") from None
     scheme = parts.scheme.lower()
     if scheme not in ("http", "https"):
-        raise ValueError(
-            f"the URL must start with http:// or https://, not '{parts.scheme}:'"
-            if parts.scheme
-            else "the URL must start with http:// or https://, e.g. http://192.168.1.50:7125"
+        if parts.scheme:
+            raise _invalid(
+                f"the URL must start with http:// or https://, not '{parts.scheme}:'",
+                f"la URL debe empezar por http:// o https://, no por '{parts.scheme}:'",
+            )
+        raise _invalid(
+            "the URL must start with http:// or https://, e.g. http://192.168.1.50:7125",
+            "la URL debe empezar por http:// o https://, p. ej. http://192.168.1.50:7125",
         )
     if "@" in parts.netloc:
-        raise ValueError("the URL must not contain credentials; set the printer's api_key instead")
+        raise _invalid(
+            "the URL must not contain credentials; set the printer's api_key instead",
+            "la URL no puede llevar credenciales; indica la clave de API de la impresora",
+        )
     if not parts.hostname:
-        raise ValueError("the URL has no host, e.g. http://192.168.1.50:7125")
+        raise _invalid(
+            "the URL has no host, e.g. http://192.168.1.50:7125",
+            "a la URL le falta el host, p. ej. http://192.168.1.50:7125",
+        )
     if parts.query or parts.fragment or url.endswith(("?", "#")):
-        raise ValueError("the URL must not have a query string or fragment")
+        raise _invalid(
+            "the URL must not have a query string or fragment",
+            "la URL no puede llevar parámetros (?) ni fragmento (#)",
+        )
     # Moonraker answers at the root of its host and port (/server/info, /websocket): a
     # path is a pasted page address ("/server/info", Mainsail's "/#/"), never a prefix.
     if parts.path.strip("/"):
-        raise ValueError(
+        raise _invalid(
             f"the URL must be Moonraker's address only, without a path: remove "
-            f"'{parts.path}', e.g. http://192.168.1.50:7125"
+            f"'{parts.path}', e.g. http://192.168.1.50:7125",
+            f"la URL debe ser solo la dirección de Moonraker, sin ruta: quita "
+            f"'{parts.path}', p. ej. http://192.168.1.50:7125",
         )
     return f"{scheme}://{parts.netloc.lower()}"
 
@@ -97,7 +126,10 @@ def _api_key_input(value: object) -> object:
         return None
     # The key goes into an X-Api-Key header: printable ASCII, no spaces.
     if isinstance(value, str) and not all("!" <= c <= "~" for c in value):
-        raise ValueError("the API key must be printable ASCII without spaces")
+        raise _invalid(
+            "the API key must be printable ASCII without spaces",
+            "la clave de API solo puede tener caracteres ASCII imprimibles, sin espacios",
+        )
     return value
 
 
@@ -262,7 +294,10 @@ class PrinterUpdate(_Model):
         # null means "remove" for the key; for any other field it is a mistake, not "keep".
         for name in self.model_fields_set - {"api_key"}:
             if getattr(self, name) is None:
-                raise ValueError(f"'{name}' cannot be null; leave it out to keep its value")
+                raise _invalid(
+                    f"'{name}' cannot be null; leave it out to keep its value",
+                    f"'{name}' no puede ser null; omítelo para conservar su valor",
+                )
         return self
 
     def apply(self, current: PrinterConfig) -> PrinterConfig:

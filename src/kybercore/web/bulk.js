@@ -37,7 +37,7 @@ export function initBulk(barEl, selectButtons) {
     );
   bar.append(
     countEl,
-    h("div", { class: "bulk-actions", role: "group", "aria-label": t("bulk.actions") }, ACTIONS.map(([action, iconName]) => button(action, iconName))),
+    h("div", { class: "bulk-actions", role: "group", dataset: { i18nAriaLabel: "bulk.actions" }, "aria-label": t("bulk.actions") }, ACTIONS.map(([action, iconName]) => button(action, iconName))),
     button("upload", "upload"),
     button("emergency_stop", "bolt", "estop"),
     button("clear", "close", "ghost"),

@@ -66,7 +66,7 @@ function mount(uPlot, box, options, data) {
  * Lines over time. series: [{label, stroke (CSS variable), dash?}], data: [times (epoch
  * s), ...values] in uPlot's column layout (null: no value there).
  */
-export async function timeChart(box, { series, data, height = 180, unit = "", window = 0 }) {
+export async function timeChart(box, { series, data, height = 180, unit = "", window = 0, timeLabel = "" }) {
   const uPlot = await loadCharts();
   // A fixed window (the last `window` seconds) keeps minute ticks even while the data is
   // only seconds long; uPlot would otherwise label fractions of a second.
@@ -77,7 +77,7 @@ export async function timeChart(box, { series, data, height = 180, unit = "", wi
     scales: { x },
     axes: [axis(window ? { values: clock, space: 60 } : {}), axis({ values: (u, splits) => splits.map((v) => `${v}${unit}`), size: 56 })],
     series: [
-      {},
+      timeLabel ? { label: timeLabel } : {}, // uPlot's own label is English ("Time")
       ...series.map((s) => ({
         label: s.label,
         stroke: color(s.stroke),

@@ -21,9 +21,11 @@ export function getLang() {
   return lang;
 }
 
-/** A translated string; {name} placeholders are filled from vars. */
+/** A translated string; {name} placeholders are filled from vars. With vars.n === 1 the
+ * key's "_one" form is used where there is one ("1 printer", "1 seleccionada"). */
 export function t(key, vars) {
-  const text = STRINGS[lang][key] ?? STRINGS.en[key] ?? key;
+  const one = vars?.n === 1 ? STRINGS[lang][`${key}_one`] : undefined;
+  const text = one ?? STRINGS[lang][key] ?? STRINGS.en[key] ?? key;
   if (!vars) return text;
   return text.replace(/\{(\w+)\}/g, (match, name) => (name in vars ? String(vars[name]) : match));
 }

@@ -220,7 +220,7 @@ function updateCounts() {
         { type: "button", class: "count-chip", dataset: { group }, "aria-pressed": String(view.state === group), title: t("filter.only", { state: t(`group.${group}`) }) },
         h("span", { class: "dot", "aria-hidden": "true" }),
         h("strong", { text: String(counts[group]) }),
-        h("span", { text: t(`group.${group}`) }),
+        h("span", { text: t(`group.${group}`, { n: counts[group] }) }),
       ),
     ),
   );

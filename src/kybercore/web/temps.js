@@ -33,7 +33,7 @@ export async function showTemperatures(box, id) {
     { label: t(`temps.${view}`), stroke },
     { label: t(`temps.${view}_target`), stroke, dash: true },
   ]);
-  state.graph = await timeChart(box, { series, data: state.data, height: 170, unit: "°", window: WINDOW });
+  state.graph = await timeChart(box, { series, data: state.data, height: 170, unit: "°", window: WINDOW, timeLabel: t("temps.time") });
   if (shown !== state) {
     state.graph.destroy();
     return;
