@@ -41,7 +41,7 @@ function updateActions(box, p, memo) {
     const label = t(`action.${action}`);
     setAttr(button, "aria-label", t("aria.onPrinter", { action: label, name: p.name }));
     let enabled = true;
-    if (action === "files") enabled = online;
+    if (action === "files" || action === "console") enabled = online;
     else if (action in actions) enabled = operator && Boolean(actions[action]);
     button.disabled = !enabled;
     setAttr(button, "title", !operator && action in actions ? `${label} — ${t("session.needs_operator")}` : label);
