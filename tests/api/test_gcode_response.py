@@ -98,7 +98,8 @@ async def test_the_console_history_is_the_printers_gcode_store(api: httpx.AsyncC
     [
         (["// FIRMWARE_NAME:Klipper FIRMWARE_VERSION:v0.12"], []),
         (['// Unknown command:"FOO_BAR"'], ['Unknown command:"FOO_BAR"']),
-        (["!! Unknown command: FOO_BAR"], ["Unknown command: FOO_BAR"]),  # a firmware that marks it an error
+        # A firmware that marks an unknown command as an error.
+        (["!! Unknown command: FOO_BAR"], ["Unknown command: FOO_BAR"]),
         (["echo: x", "!! boom", "ok"], ["boom"]),
         (["// Klipper state: Ready"], []),
     ],

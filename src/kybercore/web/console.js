@@ -17,7 +17,8 @@ const HISTORY_LINES = 100;
 const OWED_MS = 10000;
 // Klipper's ways of saying a command failed: "!! ..." lines, and unknown commands, which
 // Klipper 0.12 reports as plain information ('// Unknown command:"FOO"') though nothing ran.
-const ERROR_LINE = /^\s*(?:!!|\/\/\s*Unknown command|Error)/i;
+// The same rule as the backend's (kybercore.fleet.actions.klipper_errors).
+const ERROR_LINE = /^\s*(?:!!|\/\/\s*Unknown command:)/;
 
 const typed = []; // commands typed here, for the arrow keys
 let state = null; // {id, entries, el, loading, early, running, owed}
