@@ -144,6 +144,31 @@ def action_result(outcome: ActionOutcome) -> dict[str, Any]:
     }
 
 
+class GcodeResult(ActionResult):
+    """A G-code's outcome with what Klipper answered. Klipper reports some failures
+    (``!!`` lines, unknown commands) as responses while Moonraker reports success: those
+    keep ``ok`` true, and ``message`` quotes them."""
+
+    response: list[str] = Field(
+        default_factory=list,
+        description="Klipper's response lines while the G-code ran, in order "
+        "(e.g. M115: '// FIRMWARE_NAME:Klipper ...'; errors start with '!!').",
+    )
+
+
+def gcode_result(outcome: ActionOutcome) -> dict[str, Any]:
+    """A :class:`GcodeResult` body for ``outcome``."""
+    return {**action_result(outcome), "response": outcome.response}
+
+
+class ConsoleEntry(BaseModel):
+    """One line of a printer's console, as Moonraker's G-code store keeps it."""
+
+    message: str
+    time: float = Field(description="Unix time, by the printer's clock.")
+    type: str = Field(description="'command' (sent by any client) or 'response' (Klipper's).")
+
+
 class UploadResult(ActionResult):
     """An upload (always ``ok`` and 201 once the file is stored) and, when ``start`` was
     asked, the start that followed: done, or refused with its reasons, which are copied

@@ -16,10 +16,13 @@ from kybercore.api.models import (
     ActionRequest,
     ActionResult,
     CheckResult,
+    ConsoleEntry,
     GcodeRequest,
+    GcodeResult,
     PrinterView,
     action_result,
     check_result,
+    gcode_result,
 )
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
 
@@ -115,13 +118,30 @@ async def check(
 
 @router.post(
     "/{printer_id}/gcode",
-    response_model=ActionResult,
+    response_model=GcodeResult,
     responses=ERROR_RESPONSES,
     dependencies=[OPERATOR],
 )
 async def gcode(service: Service, printer_id: str, body: GcodeRequest) -> dict[str, Any]:
-    """Run G-code; answers when it has finished. Responses also stream over /ws."""
+    """Run G-code; answers when it has finished, with Klipper's response lines (they
+    also stream over /ws to the consoles watching this printer)."""
     outcome = await service.act(
         printer_id, "gcode", {"script": body.script}, force=body.force, confirm=body.confirm
     )
-    return action_result(outcome)
+    return gcode_result(outcome)
+
+
+@router.get(
+    "/{printer_id}/console",
+    response_model=list[ConsoleEntry],
+    responses=ERROR_RESPONSES,
+    dependencies=[VIEWER],
+)
+async def console(
+    service: Service,
+    printer_id: str,
+    count: Annotated[int, Query(ge=1, le=1000, description="How many entries, newest.")] = 100,
+) -> list[dict[str, Any]]:
+    """The printer's recent console, oldest first: the commands every client sent and
+    Klipper's responses (Moonraker's G-code store)."""
+    return await service.console_history(printer_id, count)

@@ -7,7 +7,8 @@ describes the outcome. The fleet service ties them together.
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable, Mapping
+import re
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -35,6 +36,8 @@ class ActionOutcome:
     start: ActionOutcome | None = None
     """After an upload asked to start the file: that start, done or refused (the file is
     stored either way)."""
+    response: list[str] = field(default_factory=list)
+    """A console G-code's response lines from Klipper, in order (empty for the rest)."""
 
     @property
     def ok(self) -> bool:
@@ -93,8 +96,9 @@ def failed_outcome(printer_id: str, action: str, exc: KyberCoreError) -> ActionO
     return ActionOutcome(printer_id, action, exc.message, exc, list(exc.reasons))
 
 
-async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any]) -> None:
-    """Run a validated action on Moonraker; returns once Moonraker has done it."""
+async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any]) -> list[str]:
+    """Run a validated action on Moonraker; returns once Moonraker has done it, with
+    Klipper's response lines for a console G-code (none for the other actions)."""
     simple: dict[str, Callable[[], Awaitable[None]]] = {
         "pause": client.print_pause,
         "resume": client.print_resume,
@@ -113,9 +117,10 @@ async def execute(client: MoonrakerClient, action: str, params: Mapping[str, Any
     elif action == "set_temperature":
         await client.gcode_script(temperature_gcode(params))
     elif action == "gcode":
-        await client.gcode_script(str(params["script"]))
+        return await client.gcode_with_output(str(params["script"]))
     else:
         raise InvalidInput(f"Unknown action '{action}'.")
+    return []
 
 
 _JOB: Final = ("print_stats", "virtual_sdcard", "display_status", "idle_timeout")
@@ -163,6 +168,26 @@ _DONE: Final = {
 }
 
 
-def done_message(action: str, params: Mapping[str, Any]) -> str:
-    """What to tell the user after ``action`` succeeded."""
+# Klipper's errors in its console: "!! ..." lines, and unknown commands, which Klipper 0.12
+# reports as plain information ('// Unknown command:"FOO"') although nothing ran.
+_KLIPPER_ERROR: Final = re.compile(
+    r"^(?:!!\s*(?P<error>.*)|//\s*(?P<unknown>Unknown command:.*))$", re.S
+)
+
+
+def klipper_errors(lines: Sequence[str]) -> list[str]:
+    """The lines of a G-code's response that say it failed, in Klipper's words."""
+    found = (_KLIPPER_ERROR.match(line.strip()) for line in lines)
+    return [m["error"] or m["unknown"] for m in found if m]
+
+
+def done_message(action: str, params: Mapping[str, Any], response: Sequence[str] = ()) -> str:
+    """What to tell the user after ``action`` succeeded; for G-code that Klipper answered
+    with an error line, that error (Moonraker reports success for those)."""
+    errors = klipper_errors(response)
+    if errors:
+        return (
+            f"Klipper answered with an error: {' '.join(errors)} "
+            "Check the command and its parameters (HELP lists the commands)."
+        )
     return _DONE.get(action, "Done.").format(filename=params.get("filename", ""))

@@ -235,13 +235,13 @@ class FleetService:
         verdict = await self.dry_run(printer_id, action, params, force)
         raise_if_blocked(verdict, printer_id)
         warnings = require_confirmation(verdict, confirm)
-        await execute(self.client(printer_id), action, params)
+        response = await execute(self.client(printer_id), action, params)
         # Know (and show) the state the action left before answering: the next action is
         # judged against it, and a GET right after must show what the answer promised.
         await self.sessions.refresh(printer_id, changed_objects(action))
-        message = done_message(action, params)
+        message = done_message(action, params, response)
         self._announce(printer_id, action, message)
-        return ActionOutcome(printer_id, action, message, reasons=warnings)
+        return ActionOutcome(printer_id, action, message, reasons=warnings, response=response)
 
     async def act_many(
         self,
@@ -322,6 +322,11 @@ class FleetService:
     async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
         """Moonraker's metadata of one file."""
         return await self.client(printer_id).file_metadata(filename)
+
+    async def console_history(self, printer_id: str, count: int) -> list[dict[str, Any]]:
+        """The printer's last ``count`` console entries from Moonraker, oldest first:
+        ``[{message, time, type: "command"|"response"}]``."""
+        return await self.client(printer_id).gcode_store(count)
 
     def _announce(self, printer_id: str, action: str, message: str) -> None:
         event = {"type": "action", "printer": printer_id, "action": action, "ok": True}

@@ -149,6 +149,25 @@ class MoonrakerClient:
         )
         return str(result)
 
+    async def gcode_with_output(self, script: str) -> list[str]:
+        """Run G-code as a console does and return Klipper's response lines
+        (``// FIRMWARE_NAME:...``, ``!! Unknown command``); Klipper's refusals raise.
+
+        Over the live session: Moonraker sends the ``notify_gcode_response`` lines on the
+        same socket before the call's answer, so they are all in by then (a request over
+        HTTP could be answered before the socket delivers them). Lines other clients'
+        commands caused meanwhile are in the list too. Without a session: over HTTP, and
+        no lines.
+        """
+        if not self.session.connected:
+            await self.gcode_script(script)
+            return []
+        with self.session.gcode_responses() as lines:
+            await self._channel.rpc(
+                "printer.gcode.script", {"script": script}, GCODE_TIMEOUT.read or 600.0
+            )
+        return lines
+
     async def print_start(self, filename: str) -> None:
         """Start printing ``filename`` (relative to the gcodes root)."""
         await self._channel.request(

@@ -22,7 +22,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any, Final
 from urllib.parse import urlsplit
 
@@ -115,6 +115,7 @@ class MoonrakerSession:
         ``server.info`` sent before the count last moved is older than what we know."""
         self._up = False
         """This connection got as far as a valid ``server.info``: Moonraker really answered."""
+        self._gcode_collectors: list[list[str]] = []
         self.connection = "connecting"
         self.klippy_state = "disconnected"
         self.last_error = ""
@@ -164,6 +165,22 @@ class MoonrakerSession:
         """
         link = self._link
         return None if link is None else await link.ping(timeout)
+
+    @contextlib.contextmanager
+    def gcode_responses(self) -> Iterator[list[str]]:
+        """The ``notify_gcode_response`` lines that arrive while the block runs, in order.
+
+        Moonraker sends the responses to a ``printer.gcode.script`` call on the socket
+        before its answer, so a call awaited inside the block has all of its lines in the
+        list once it returns (with any other client's lines from that time, too).
+        """
+        lines: list[str] = []
+        self._gcode_collectors.append(lines)
+        try:
+            yield lines
+        finally:
+            # By identity: list.remove() compares contents, and two calls may hold equal lists.
+            self._gcode_collectors = [c for c in self._gcode_collectors if c is not lines]
 
     async def resubscribe(self) -> None:
         """Subscribe again (for example after changing what to watch).
@@ -371,6 +388,9 @@ class MoonrakerSession:
         if method.startswith("notify_klippy_"):
             self._hear_klippy(klippy_state_after(self.klippy_state, method, params))
             return
+        if method == "notify_gcode_response" and params:
+            for lines in self._gcode_collectors:
+                lines.append(str(params[0]))
         self._emit(Notification(method, params))
 
     def _answered(self, method: str, result: Any) -> None:

@@ -9,8 +9,11 @@ import { gateState } from "./queue_data.js";
 import { can } from "./session.js";
 import { printers } from "./store.js";
 
-/** Actions that ask first; all of them are drastic. */
-export const CONFIRM = new Set(["cancel", "emergency_stop", "firmware_restart", "restart"]);
+/**
+ * Actions that ask first; all of them are drastic. Not the emergency stop of one printer:
+ * it must be one click (its undo is a firmware restart); the bulk bar asks for many.
+ */
+export const CONFIRM = new Set(["cancel", "firmware_restart", "restart"]);
 
 let panels = { openDrawer: () => {}, editPrinter: () => {}, removePrinter: () => {} };
 

@@ -53,6 +53,7 @@ export const api = {
   act: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}`, params),
   check: (id, action, params = {}) => request("POST", `${printer(id)}/actions/${enc(action)}/check`, params),
   gcode: (id, script, options = {}) => request("POST", `${printer(id)}/gcode`, { script, ...options }),
+  console: (id, count = 100) => request("GET", `${printer(id)}/console?count=${count}`),
   files: (id) => request("GET", `${printer(id)}/files`),
   deleteFile: (id, path) => request("DELETE", `${printer(id)}/files?path=${enc(path)}`),
   metadata: (id, filename) => request("GET", `${printer(id)}/files/metadata?filename=${enc(filename)}`),

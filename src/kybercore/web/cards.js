@@ -43,7 +43,7 @@ function updateActions(box, p, memo) {
     const named = action === "emergency_stop" ? t("aria.estop", { short: t("action.estop_short"), action: label }) : label;
     setAttr(button, "aria-label", t("aria.onPrinter", { action: named, name: p.name }));
     let enabled = true;
-    if (action === "files") enabled = online;
+    if (action === "files" || action === "console") enabled = online;
     else if (action in actions) enabled = operator && Boolean(actions[action]);
     button.disabled = !enabled;
     setAttr(button, "title", !operator && action in actions ? `${label} — ${t("session.needs_operator")}` : label);

@@ -107,6 +107,7 @@ export async function confirmDialog({ title, message, confirmLabel, danger = fal
 /** A short message in the live region; errors stay until closed. */
 export function toast({ kind = "info", title = "", message = "", timeout }) {
   const region = document.getElementById("toasts");
+  keepAboveBulkBar(region);
   const item = h(
     "div",
     { class: `toast ${kind}`, role: kind === "error" ? "alert" : "status" },
@@ -119,6 +120,23 @@ export function toast({ kind = "info", title = "", message = "", timeout }) {
   const ms = timeout ?? (kind === "error" ? 15000 : 6000);
   if (ms > 0) setTimeout(() => item.remove(), ms);
   return item;
+}
+
+let bulkBarWatch = null;
+
+/** Lift the toasts above the bulk bar while it is shown, so they never cover its buttons. */
+function keepAboveBulkBar(region) {
+  const bar = document.getElementById("bulk");
+  if (bulkBarWatch || !bar || typeof ResizeObserver === "undefined") return;
+  const place = () => {
+    const rect = bar.getBoundingClientRect();
+    // Hidden, the bar has no box; shown, it may wrap to several rows (phones).
+    region.style.bottom = rect.height ? `${Math.ceil(window.innerHeight - rect.top) + 8}px` : "";
+  };
+  bulkBarWatch = new ResizeObserver(place);
+  bulkBarWatch.observe(bar);
+  window.addEventListener("resize", place);
+  place();
 }
 
 // -- popup menu ------------------------------------------------------------------------------
@@ -144,7 +162,9 @@ export function openMenu(anchor, items, label) {
         "aria-disabled": item.disabled ? "true" : null,
         tabindex: "-1",
         onclick: () => {
-          closeMenu(false);
+          // Focus back on the menu's button first: a dialog the item opens returns focus
+          // to what had it (this item is gone by then), not to the page body.
+          closeMenu();
           item.onSelect();
         },
       },

@@ -131,13 +131,18 @@ function onEvent(frame) {
   }
 }
 
-/** Prints that finish or fail while the page is open. */
+/**
+ * Prints that finish or fail while the page is open: only a live step from printing or
+ * paused, seen while the printer is connected. A printer that comes back (its job state
+ * is empty while Klippy is away) or a snapshot shows its last job's end, long past: no toast.
+ */
 function onStoreChange(change) {
   lastData = Date.now();
   if (change.full) refreshQueue(0); // (re)connected: the queue may have moved meanwhile
-  for (const { id, to } of change.transitions) {
+  for (const { id, from, to } of change.transitions) {
     const p = printers.get(id);
-    if (!p || (to !== "complete" && to !== "error")) continue;
+    if (!p || p.connection !== "online" || (from !== "printing" && from !== "paused")) continue;
+    if (to !== "complete" && to !== "error") continue;
     const filename = fmt.baseName(p.job?.filename);
     toast({ kind: to === "complete" ? "ok" : "error", title: p.name, message: t(`notify.${to}`, { filename }), timeout: to === "complete" ? 10000 : 0 });
   }

@@ -186,8 +186,6 @@ export const en = {
   "action.done": "Done",
   "confirm.cancel.title": "Cancel the print on {name}?",
   "confirm.cancel.body": "The print stops and cannot be resumed.",
-  "confirm.emergency_stop.title": "Emergency stop {name}?",
-  "confirm.emergency_stop.body": "Klipper shuts down at once: heaters and motors off. The print is lost; a firmware restart brings the printer back.",
   "confirm.firmware_restart.title": "Firmware restart {name}?",
   "confirm.firmware_restart.body": "Klipper and its MCUs restart. The printer is unavailable for a few seconds.",
   "confirm.restart.title": "Restart Klipper on {name}?",
@@ -416,4 +414,7 @@ export const en = {
   "jobform.allow_mismatch": "Print even where the file's settings disagree with the printer",
   "jobform.submit": "Add to queue",
   "jobform.refused": "No printer of the fleet could ever print this job:",
+  // The console (issue 19): a command Klipper answered with an error; history unavailable.
+  "console.failed": "✗ failed:",
+  "console.no_history": "The printer's recent console could not be read: {error}",
 };

@@ -189,8 +189,6 @@ export const es = {
   "action.done": "Hecho",
   "confirm.cancel.title": "¿Cancelar la impresión en {name}?",
   "confirm.cancel.body": "La impresión se detiene y no se podrá reanudar.",
-  "confirm.emergency_stop.title": "¿Parada de emergencia en {name}?",
-  "confirm.emergency_stop.body": "Klipper se apaga al instante: calentadores y motores apagados. La impresión se pierde; un reinicio de firmware recupera la impresora.",
   "confirm.firmware_restart.title": "¿Reiniciar el firmware de {name}?",
   "confirm.firmware_restart.body": "Klipper y sus MCU se reinician. La impresora no estará disponible unos segundos.",
   "confirm.restart.title": "¿Reiniciar Klipper en {name}?",
@@ -419,4 +417,7 @@ export const es = {
   "jobform.allow_mismatch": "Imprimir aunque los ajustes del archivo no coincidan con la impresora",
   "jobform.submit": "Añadir a la cola",
   "jobform.refused": "Ninguna impresora de la flota podría imprimir nunca este trabajo:",
+  // The console (issue 19): a command Klipper answered with an error; history unavailable.
+  "console.failed": "✗ falló:",
+  "console.no_history": "No se pudo leer la consola reciente de la impresora: {error}",
 };
