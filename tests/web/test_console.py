@@ -138,7 +138,7 @@ def test_the_bulk_emergency_stop_still_asks(page: Page, kybercore_server: KyberC
     page.get_by_role("checkbox", name="Select Printer A").check()
     bar = page.get_by_role("region", name="Bulk actions")
     bar.locator("[data-bulk=emergency_stop]").click()
-    preview = page.get_by_role("dialog", name="Emergency stop: 1 printer(s)")
+    preview = page.get_by_role("dialog", name="Emergency stop: 1 printer")
     expect(preview).to_be_visible()
     preview.get_by_role("button", name="Back").click()
     expect(preview).to_be_hidden()
