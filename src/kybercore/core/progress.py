@@ -24,6 +24,7 @@ from going backwards whatever Klippy reports.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
@@ -62,8 +63,9 @@ class PrintMemory:
     heating_seen: bool = False
     """The print was seen busy before its first extrusion."""
     extruding_from: float | None = None
-    """Progress when the first extrusion was seen, if the print was followed from before
-    it (else the start G-code's share of the file is unknown and taken as 0)."""
+    """Progress at the last update before the first extrusion, if the print was followed
+    from before it (else the start G-code's share of the file is unknown and taken as 0):
+    the pace counts from there, as ``print_duration`` does."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +146,9 @@ def track(
     heating_seen = memory.heating_seen or (busy and duration <= EXTRUDED)
     extruding_from = memory.extruding_from
     if extruding_from is None and busy and duration > EXTRUDED:
-        extruding_from = progress if heating_seen else 0.0
+        # The last progress seen before: a little early (homing, the prime line), never
+        # late, however long the gap between the updates.
+        extruding_from = memory.progress if memory.heating_seen else 0.0
     return PrintMemory(filename, state, duration, progress, heating_seen, extruding_from)
 
 
@@ -185,10 +189,12 @@ def _seconds_left(
         paces.append(duration * total / used - duration)  # "filament"
     estimated = finite_number(meta.get("estimated_time")) or 0.0
     by_slicer = estimated * (1 - progress) if estimated > 0 else None  # "slicer"
+    paces = [pace for pace in paces if math.isfinite(pace)]  # a vanishing fraction done
     if not paces:
         return by_slicer
     by_pace = sum(paces) / len(paces)
     if by_slicer is None:
-        return by_pace if done >= PACE_MIN else None
+        return by_pace if done >= PACE_MIN and math.isfinite(by_pace) else None
     weight = min(max(done, 0.0) / PACE_TRUSTED, 1.0)
-    return by_slicer * (1 - weight) + by_pace * weight
+    left = by_slicer * (1 - weight) + by_pace * weight
+    return left if math.isfinite(left) else by_slicer
