@@ -403,4 +403,8 @@ export const en = {
   "jobform.allow_mismatch": "Print even where the file's settings disagree with the printer",
   "jobform.submit": "Add to queue",
   "jobform.refused": "No printer of the fleet could ever print this job:",
+  // Progress and time left: the finish time, and why the time left is not known yet.
+  "job.done_at": "done at {time}",
+  "job.done_on": "done {day} at {time}",
+  "job.eta_pending": "Time left: known once the printer starts extruding",
 };

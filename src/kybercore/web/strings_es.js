@@ -403,4 +403,8 @@ export const es = {
   "jobform.allow_mismatch": "Imprimir aunque los ajustes del archivo no coincidan con la impresora",
   "jobform.submit": "Añadir a la cola",
   "jobform.refused": "Ninguna impresora de la flota podría imprimir nunca este trabajo:",
+  // Progreso y tiempo restante: la hora de fin, y por qué aún no se sabe lo que resta.
+  "job.done_at": "termina a las {time}",
+  "job.done_on": "termina el {day} a las {time}",
+  "job.eta_pending": "Tiempo restante: se sabrá cuando la impresora empiece a extruir",
 };
