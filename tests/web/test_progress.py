@@ -91,6 +91,7 @@ def _below_target(value: str, target: str) -> bool:
     return now is not None and wanted is not None and wanted > 0 and now < wanted - 10
 
 
+@pytest.mark.timeout(600)  # a whole print, heating included: PRINT_TIMEOUT and the setup
 def test_a_print_s_tile_shows_no_eta_while_heating_then_the_finish_clock(
     new_page: Callable[..., Page], kybercore_server: KyberCoreServer, api: httpx.Client
 ) -> None:
