@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import SecretStr
 
-from kybercore.core.view import LivePrinter, detect_capabilities, diff, eta_seconds, facts, fuse
+from kybercore.core.view import LivePrinter, detect_capabilities, diff, facts, fuse
 from kybercore.errors import InvalidInput
 from kybercore.fleet.actions import temperature_gcode
 from kybercore.moonraker.objects import merge_status
@@ -95,15 +95,6 @@ def test_a_thumbnail_of_a_file_in_a_folder_is_given_under_gcodes() -> None:
     thumbs = [{"width": 300, "relative_path": ".thumbs/j1-c1-a1-cube-300x300.png"}]
     view = fuse(CONFIG, live(status=status, file_meta={"filename": name, "thumbnails": thumbs}))
     assert view["job"]["thumbnail"] == "kybercore/.thumbs/j1-c1-a1-cube-300x300.png"
-
-
-def test_eta() -> None:
-    assert eta_seconds(0.0, 0.0, 300) == 300
-    assert eta_seconds(1.0, 100.0, 300) == 0
-    assert eta_seconds(0.001, 1.0, None) is None
-    # Early on the slicer's estimate dominates; later the measured pace does.
-    assert eta_seconds(0.02, 10.0, 300) == pytest.approx(300 * 0.98 * 0.9 + 490 * 0.1)
-    assert eta_seconds(0.5, 200.0, 300) == pytest.approx(200)
 
 
 def test_diff_sends_only_what_changed() -> None:

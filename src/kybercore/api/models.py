@@ -271,8 +271,15 @@ class Job(BaseModel):
 
     state: str = Field(description="standby, printing, paused, complete, cancelled, error or ''.")
     filename: str
-    progress: float = Field(description="0 to 1.")
-    eta_seconds: int | None = Field(description="Seconds left, while printing or paused.")
+    progress: float = Field(
+        description="0 to 1: the file position within the G-code; never goes back during a print."
+    )
+    eta_seconds: int | None = Field(
+        description="Seconds left, while printing or paused; null until extrusion starts."
+    )
+    eta_at: int | None = Field(
+        description="When the print will be done (Unix seconds), with ``eta_seconds``."
+    )
     estimated_time: float | None = Field(description="The slicer's estimate for the whole file.")
     print_duration: int
     total_duration: int

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from kybercore.core.numbers import finite_number
+from kybercore.core.progress import BUSY, PrintMemory, estimate, track
 from kybercore.core.validation import PrinterFacts, allowed_actions
 from kybercore.moonraker.objects import Status
 from kybercore.registry.models import PrinterConfig
@@ -42,6 +43,9 @@ class LivePrinter:
     limits: str = "loading"
     """Whether ``detected`` is read: ``loading`` (since the last (re)subscription),
     ``known``, or ``unknown`` (the read failed; it is retried)."""
+    print_memory: PrintMemory = field(default_factory=PrintMemory)
+    """What the view remembers of the print between updates (the fleet keeps it with
+    :func:`tracked`); it keeps the progress shown from going backwards."""
     updated_at: float = 0.0
 
 
@@ -146,47 +150,24 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
     )
 
 
-def eta_seconds(
-    progress: float, print_duration: float, estimated_time: float | None
-) -> float | None:
-    """Seconds left in a print.
-
-    The slicer's estimate scaled by what is left is steadier early on; once a few percent
-    are done, the measured pace (what Mainsail calls the "file" estimate) is blended in.
-    """
-    if progress <= 0:
-        return estimated_time
-    if progress >= 1:
-        return 0.0
-    by_pace = print_duration / progress - print_duration
-    if not estimated_time:
-        return by_pace if progress >= 0.01 else None
-    by_slicer = estimated_time * (1 - progress)
-    weight = min(progress / 0.2, 1.0)
-    return by_slicer * (1 - weight) + by_pace * weight
-
-
 def fuse(config: PrinterConfig, live: LivePrinter) -> View:
     """The printer as the API and the browser see it. Never contains the API key."""
     # Field types are whatever the peer sent: read numbers and text defensively, so one
     # misbehaving printer cannot break the view of the whole fleet.
     status = live.status
     stats = status.get("print_stats", {})
-    sdcard = status.get("virtual_sdcard", {})
     display = status.get("display_status", {})
     toolhead = status.get("toolhead", {})
     info: dict[str, Any] = stats["info"] if isinstance(stats.get("info"), dict) else {}
     print_state = str(stats.get("state", "")) if live.klippy_state == "ready" else ""
     filename = str(stats.get("filename") or "")
-    progress = _num(display.get("progress"), 4) or _num(sdcard.get("progress"), 4) or 0.0
-    meta = live.file_meta if live.file_meta and live.file_meta.get("filename") == filename else {}
+    meta = _meta_of(live, filename)
     estimated = _num(meta.get("estimated_time"), 0)
     duration = _num(stats.get("print_duration"), 1) or 0.0
-    eta = (
-        eta_seconds(progress, duration, estimated)
-        if print_state in ("printing", "paused")
-        else None
-    )
+    reckoned = estimate(live.print_memory, status, meta, live.updated_at)
+    busy = print_state in BUSY
+    eta = reckoned.eta_seconds if busy else None
+    eta_at = reckoned.eta_at if busy else None
     thumbs = [t for t in meta.get("thumbnails") or [] if isinstance(t, dict)]
     thumbnail = (
         max(thumbs, key=lambda t: _num(t.get("width")) or 0).get("relative_path")
@@ -213,8 +194,9 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         job={
             "state": print_state,
             "filename": filename,
-            "progress": round(progress, 4),
+            "progress": round(reckoned.progress, 4),
             "eta_seconds": round(eta) if eta is not None else None,
+            "eta_at": round(eta_at) if eta_at is not None else None,
             "estimated_time": estimated,
             "print_duration": round(duration),
             "total_duration": round(_num(stats.get("total_duration")) or 0.0),
@@ -235,6 +217,19 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         updated_at=round(live.updated_at, 1),
     )
     return view
+
+
+def _meta_of(live: LivePrinter, filename: str) -> dict[str, Any]:
+    """The metadata of the file being printed; ``{}`` while unknown."""
+    meta = live.file_meta
+    return meta if meta and meta.get("filename") == filename else {}
+
+
+def tracked(live: LivePrinter) -> PrintMemory:
+    """``live.print_memory`` after the current status and file metadata: the fleet stores
+    it before every :func:`fuse` whose view it publishes."""
+    filename = str(live.status.get("print_stats", {}).get("filename") or "")
+    return track(live.print_memory, live.status, _meta_of(live, filename))
 
 
 def _heater(obj: Mapping[str, Any]) -> dict[str, float | None]:

@@ -18,7 +18,7 @@ from typing import Any, Final
 
 import httpx
 
-from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse
+from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse, tracked
 from kybercore.errors import PrinterError, UnknownPrinter
 from kybercore.fleet.hub import Hub
 from kybercore.fleet.temperatures import Temperatures
@@ -111,7 +111,11 @@ class Sessions:
     def render(self, printer_id: str) -> View | None:
         """The printer's fused view, or None once it is gone (the hub's renderer)."""
         printer = self._printers.get(printer_id)
-        return None if printer is None else fuse(printer.config, printer.live)
+        if printer is None:
+            return None
+        # What is published is what the next view must not go back from.
+        printer.live.print_memory = tracked(printer.live)
+        return fuse(printer.config, printer.live)
 
     def apply(self, printers: list[PrinterConfig]) -> asyncio.Future[Any]:
         """Make the running sessions match ``printers`` (start, stop or restart them) and
@@ -279,10 +283,12 @@ class Sessions:
     async def _load_file_meta(self, printer: FleetPrinter, filename: str) -> None:
         if printer.client is None:
             return
-        with contextlib.suppress(PrinterError):
+        try:
             meta = await printer.client.file_metadata(filename)
-            printer.live.file_meta = {**meta, "filename": filename}
-            self._hub.mark(printer.config.id)
+        except PrinterError:
+            meta = {"unavailable": True}  # read, though empty: the view stops waiting for it
+        printer.live.file_meta = {**meta, "filename": filename}
+        self._hub.mark(printer.config.id)
 
     def _read_limits(self, printer: FleetPrinter) -> None:
         """(Re)start reading the limits: Klippy may have restarted with another config."""

@@ -6,7 +6,7 @@ import * as fmt from "./format.js";
 import { GateStrip } from "./gates.js";
 import { t } from "./i18n.js";
 import { can, currentSession } from "./session.js";
-import { staleAge, statusOf } from "./store.js";
+import { serverNow, staleAge, statusOf } from "./store.js";
 
 /** Quick actions on every card; the rest live in the "more" menu. */
 const QUICK = ["pause", "resume", "cancel"];
@@ -67,9 +67,28 @@ function targetText(heater) {
   return value ? `/ ${value}` : "";
 }
 
+function busy(job) {
+  return ["printing", "paused"].includes(job?.state);
+}
+
+/** "4 min left"; "—" while the time left is unknown (heating, before any extrusion). */
 function etaText(job) {
-  if (typeof job?.eta_seconds !== "number" || !["printing", "paused"].includes(job.state)) return "";
-  return t("job.left", { time: fmt.duration(job.eta_seconds) });
+  if (!busy(job)) return "";
+  return typeof job.eta_seconds === "number" ? t("job.left", { time: fmt.duration(job.eta_seconds) }) : "—";
+}
+
+/** "done at 15:42" (the browser's clock: eta_at is the server's), or "". */
+function doneText(job) {
+  if (!busy(job) || typeof job.eta_at !== "number") return "";
+  const { day, time } = fmt.finish(job.eta_at - (serverNow() - Date.now() / 1000));
+  return day ? t("job.done_on", { day, time }) : t("job.done_at", { time });
+}
+
+/** The time left (else `otherwise`), with a hint while it is unknown. */
+function setEta(el, job, otherwise = "") {
+  const text = etaText(job);
+  setText(el, text || otherwise);
+  setAttr(el, "title", text === "—" ? t("job.eta_pending") : null);
 }
 
 function layerText(job) {
@@ -140,6 +159,7 @@ export class Tile extends Card {
       progress: progressBar(),
       pct: h("span", { class: "pct" }),
       eta: h("span", { class: "eta" }),
+      done: h("span", { class: "done" }),
       layer: h("span", { class: "layer" }),
       note: h("p", { class: "note", hidden: true }),
       hotend: h("span", { class: "value" }),
@@ -161,7 +181,7 @@ export class Tile extends Card {
       { class: "tile", dataset: { id: p.id }, "aria-labelledby": nameId },
       h("header", { class: "tile-head" }, r.select, h("div", { class: "tile-title" }, r.name, r.meta), r.pill),
       h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.tags),
-      h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.layer))),
+      h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.done, r.layer))),
       r.note,
       r.gate.el,
       h(
@@ -246,7 +266,8 @@ export class Tile extends Card {
       }
       setProgress(r.progress, 0);
       setText(r.pct, "");
-      setText(r.eta, "");
+      setEta(r.eta, {});
+      setText(r.done, "");
       setText(r.layer, "");
       this.setThumb(p, null);
       return;
@@ -258,7 +279,8 @@ export class Tile extends Card {
     setProgress(r.progress, job.progress);
     setAttr(r.progress, "aria-label", t("job.progress"));
     setText(r.pct, fmt.percent(job.progress));
-    setText(r.eta, etaText(job));
+    setEta(r.eta, job);
+    setText(r.done, doneText(job));
     setText(r.layer, layerText(job));
     this.setThumb(p, job.thumbnail);
   }
@@ -292,6 +314,7 @@ export class Row extends Card {
       progress: progressBar(),
       pct: h("span", { class: "pct" }),
       eta: h("span", { class: "eta" }),
+      done: h("small", { class: "done" }),
       hotend: h("span", {}),
       bed: h("span", {}),
       location: h("span", {}),
@@ -307,7 +330,7 @@ export class Row extends Card {
       h("th", { class: "c-name", scope: "row" }, h("span", { class: "name-cell" }, h("span", { class: "dot", "aria-hidden": "true" }), h("span", { class: "name-box" }, r.name, r.model))),
       td("c-status", r.pill, r.stale),
       td("c-job", h("span", { class: "job-line" }, r.file, r.pct), r.progress, r.note, r.gate.el),
-      td("c-eta", r.eta),
+      td("c-eta", r.eta, " ", r.done),
       td("c-temp", r.hotend),
       td("c-temp", r.bed),
       td("c-loc", r.location),
@@ -336,7 +359,8 @@ export class Row extends Card {
     setHidden(r.progress, !present);
     if (present) setProgress(r.progress, job.progress);
     setText(r.pct, present ? fmt.percent(job.progress) : "");
-    setText(r.eta, etaText(job) || (present ? "" : "—"));
+    setEta(r.eta, present ? job : {}, present ? "" : "—");
+    setText(r.done, present ? doneText(job) : "");
     const note = noteOf(p);
     setText(r.note, note);
     setHidden(r.note, !note);

@@ -75,6 +75,20 @@ export function clock(unix) {
   return new Intl.DateTimeFormat(getLang(), { hour: "2-digit", minute: "2-digit" }).format(unix * 1000);
 }
 
+/**
+ * When something will be done, as a local clock time: { time: "15:42" } today, else with the
+ * day too: { day: "Tue", time: "09:10" } within a week, { day: "3 Dec", time } after that.
+ * `unix` is in this browser's clock.
+ */
+export function finish(unix, now = Date.now() / 1000) {
+  const time = clock(unix);
+  const midnight = (seconds) => new Date(seconds * 1000).setHours(0, 0, 0, 0);
+  const days = Math.round((midnight(unix) - midnight(now)) / 86_400_000);
+  if (days === 0) return { day: "", time };
+  const options = days > 0 && days < 7 ? { weekday: "short" } : { day: "numeric", month: "short" };
+  return { day: new Intl.DateTimeFormat(getLang(), options).format(unix * 1000), time };
+}
+
 /** The part after the last "/", for long file paths. */
 export function baseName(path) {
   return (path || "").split("/").pop();

@@ -417,4 +417,8 @@ export const en = {
   // The console (issue 19): a command Klipper answered with an error; history unavailable.
   "console.failed": "✗ failed:",
   "console.no_history": "The printer's recent console could not be read: {error}",
+  // Progress and time left: the finish time, and why the time left is not known yet.
+  "job.done_at": "done at {time}",
+  "job.done_on": "done {day} at {time}",
+  "job.eta_pending": "Time left: known once the printer starts extruding",
 };

@@ -420,4 +420,8 @@ export const es = {
   // The console (issue 19): a command Klipper answered with an error; history unavailable.
   "console.failed": "✗ falló:",
   "console.no_history": "No se pudo leer la consola reciente de la impresora: {error}",
+  // Progreso y tiempo restante: la hora de fin, y por qué aún no se sabe lo que resta.
+  "job.done_at": "termina a las {time}",
+  "job.done_on": "termina el {day} a las {time}",
+  "job.eta_pending": "Tiempo restante: se sabrá cuando la impresora empiece a extruir",
 };
