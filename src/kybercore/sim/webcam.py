@@ -48,7 +48,7 @@ STREAM_PERIOD: Final = 0.5
 STATUS_WAIT: Final = 1.0
 """How long a frame waits for a fresh status before it is drawn with the last one: a frozen
 Moonraker must not freeze the picture."""
-MOONRAKER_TIMEOUT: Final = 5.0
+MOONRAKER_TIMEOUT: Final = 10.0
 _REQUEST_TIMEOUT: Final = 10.0
 _MAX_HEADER_LINES: Final = 100
 
@@ -85,7 +85,8 @@ class MoonrakerPoller:
             result = await self._get(f"/printer/objects/query?{QUERY}")
             status = result.get("status", {})
             filename = str((status.get("print_stats") or {}).get("filename") or "")
-            self._status = status_from_query(status, await self._metadata(filename))
+            meta = await self._metadata(filename)
+            self._status = status_from_query(status, meta, self._status)
         except MoonrakerDown as exc:
             # Keep the bed and the part: a camera that lost its printer still shows the plate.
             self._status = replace(self._status, state="offline", nozzle=None, message=str(exc))
@@ -246,6 +247,7 @@ async def run(name: str, port: int, moonraker_url: str) -> None:
         loop.add_signal_handler(signum, stop.set)
     server = WebcamServer(Camera(name, MoonrakerPoller(moonraker_url)))
     await server.serve(port, stop)
+    log.info("webcam stopped")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

@@ -82,14 +82,29 @@ def _layers(
     top = _num(meta.get("object_height"))
     if height <= 0 or top <= 0:
         return None, None
-    total = max(1, math.ceil((top - first) / height + 1))
+    # Rounded first: 0.8 / 0.2 is 4.000000000000001, which must not ceil to a layer more.
+    total = max(1, math.ceil(round((top - first) / height + 1, 6)))
     if z is None:
         return None, total
-    return min(total, max(0, math.ceil((z - first) / height + 1))), total
+    return min(total, max(0, math.ceil(round((z - first) / height + 1, 6)))), total
 
 
-def status_from_query(status: Mapping[str, Any], meta: Mapping[str, Any]) -> CameraStatus:
-    """A camera status from objects/query's ``status`` and the printed file's metadata."""
+def _ended_progress(
+    print_stats: Mapping[str, Any], meta: Mapping[str, Any], previous: CameraStatus
+) -> float:
+    """How far a cancelled or failed print got: Klipper forgets its file position then, but
+    the part stays on the bed. The last progress seen, else the share of filament used."""
+    if previous.filename == print_stats.get("filename") and previous.progress > 0:
+        return previous.progress
+    total = _num(meta.get("filament_total"))
+    return _num(print_stats.get("filament_used")) / total if total > 0 else 0.0
+
+
+def status_from_query(
+    status: Mapping[str, Any], meta: Mapping[str, Any], previous: CameraStatus = CONNECTING
+) -> CameraStatus:
+    """A camera status from objects/query's ``status``, the printed file's metadata and the
+    status before it."""
     webhooks = status.get("webhooks") or {}
     print_stats = status.get("print_stats") or {}
     toolhead = status.get("toolhead") or {}
@@ -101,6 +116,8 @@ def status_from_query(status: Mapping[str, Any], meta: Mapping[str, Any]) -> Cam
         progress = _num((status.get("display_status") or {}).get("progress"))
     if state == "complete":
         progress = 1.0
+    elif state in ("cancelled", "error") and progress <= 0:
+        progress = _ended_progress(print_stats, meta, previous)
     position = toolhead.get("position")
     lows, highs = toolhead.get("axis_minimum"), toolhead.get("axis_maximum")
     bed = CameraStatus("").bed
