@@ -200,7 +200,7 @@ def test_kybercore_demo_shows_three_ready_printers_and_stops_cleanly(
         children = _children(demo.pid)
         rss = {pid: _rss_kb(pid) for pid in children}
         print(f"MEASURED demo: {sum(rss.values()) / 3 / 1024:.0f} MB per virtual printer")
-        assert len(children) == 9  # MCU, Klippy and Moonraker for each printer
+        assert len(children) == 12  # MCU, Klippy, Moonraker and webcam for each printer
     finally:
         demo.send_signal(signal.SIGINT)
         output, _ = demo.communicate(timeout=30)

@@ -1,4 +1,5 @@
-"""Start and stop virtual printers: virtual MCU + real Klippy + real Moonraker, per printer.
+"""Start and stop virtual printers: virtual MCU + real Klippy + real Moonraker + a webcam,
+per printer.
 
 Every process is started here and stopped here, by PID. Nothing is left behind when a
 start fails half-way: what was started is stopped before the error is raised.
@@ -14,6 +15,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Iterator
@@ -32,6 +34,10 @@ log = logging.getLogger(__name__)
 READY_TIMEOUT: Final = 60.0
 _EXCEPTION_LINE: Final = re.compile(r"[A-Za-z_][\w.]*(: .*)?$")
 _STOP_GRACE: Final = 5.0
+# The logs whose last lines explain a failed start.
+_LOG_FILES: Final = (
+    "klippy.log", "moonraker.log", "klippy.out", "moonraker.out", "mcu.out", "webcam.out"
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -54,11 +60,12 @@ class StackOptions:
 
 @dataclass
 class PrinterStack:
-    """One running virtual printer and the three processes behind it."""
+    """One running virtual printer and the four processes behind it."""
 
     options: StackOptions
     data_dir: Path
     port: int = 0
+    webcam_port: int = 0
     _procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     _logs: list[IO[bytes]] = field(default_factory=list)
 
@@ -66,6 +73,11 @@ class PrinterStack:
     def url(self) -> str:
         """Moonraker's base URL."""
         return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def webcam_url(self) -> str:
+        """The webcam's base URL (``/snapshot``, ``/stream``)."""
+        return f"http://127.0.0.1:{self.webcam_port}"
 
     @property
     def gcodes_dir(self) -> Path:
@@ -99,23 +111,26 @@ class PrinterStack:
     # -- start / stop ------------------------------------------------------------------
 
     def start(self) -> None:
-        """Write configuration and start MCU, Klippy and Moonraker (does not wait for ready)."""
+        """Write configuration and start MCU, Klippy, Moonraker and the webcam (does not wait
+        for ready)."""
         try:
             self.port = self.options.port or free_port()
             if self.options.port:
                 ensure_port_free(self.port)
+            self.webcam_port = free_port()
             self._write_config()
             if self.options.with_klippy:
                 self.start_mcu()
                 self.start_klippy()
             self.start_moonraker()
+            self.start_webcam()
         except BaseException:
             self.stop()
             raise
 
     def stop(self) -> None:
-        """Stop every process this stack started: Moonraker, Klippy, then the MCU."""
-        for name in ("moonraker", "klippy", "mcu"):
+        """Stop every process this stack started: webcam, Moonraker, Klippy, then the MCU."""
+        for name in ("webcam", "moonraker", "klippy", "mcu"):
             self._stop(name)
         for handle in self._logs:
             handle.close()
@@ -168,6 +183,28 @@ class PrinterStack:
             ],
         )
 
+    def start_webcam(self) -> None:
+        """Start the webcam, which draws this printer's bed from its Moonraker's status.
+
+        A process of its own, like the MCU: drawing and JPEG encoding in the MCU process
+        would hold its GIL and jitter the clock Klippy synchronises to, and neither Klippy
+        nor Moonraker is ours to extend. Idle it costs memory only: no polling, no drawing.
+        """
+        self._spawn(
+            "webcam",
+            [
+                sys.executable,
+                "-m",
+                "kybercore.sim.webcam",
+                "--name",
+                self.options.name,
+                "--port",
+                str(self.webcam_port),
+                "--moonraker",
+                self.url,
+            ],
+        )
+
     def stop_moonraker(self) -> None:
         """Stop Moonraker only (tests use this to take a printer off the network)."""
         self._stop("moonraker")
@@ -180,18 +217,19 @@ class PrinterStack:
             proc.wait()
 
     def wait_ready(self, timeout: float = READY_TIMEOUT) -> None:
-        """Block until Moonraker reports Klippy ``ready``; explain with log tails if not."""
+        """Block until Moonraker reports Klippy ``ready`` and the webcam listens; explain with
+        log tails if not."""
         deadline = time.monotonic() + timeout
         state = "not answering"
         with httpx.Client(timeout=2.0, trust_env=False) as http:
             while time.monotonic() < deadline:
-                for name in ("mcu", "klippy", "moonraker"):
+                for name in ("mcu", "klippy", "moonraker", "webcam"):
                     self._check_alive(name)
                 self._check_klippy_started()
                 with contextlib.suppress(httpx.HTTPError, ValueError):
                     info = http.get(f"{self.url}/server/info").json()["result"]
                     state = info["klippy_state"]
-                    if state == "ready":
+                    if state == "ready" and _listening(self.webcam_port):
                         return
                     if state == "error":
                         # A config error is final: Klippy waits for a RESTART that won't come.
@@ -235,7 +273,9 @@ class PrinterStack:
         )
         (self.data_dir / "config" / "printer.cfg").write_text(render_printer_cfg(spec))
         (self.data_dir / "config" / "moonraker.conf").write_text(
-            render_moonraker_conf(self.port, self._klippy_socket, opts.trusted_clients)
+            render_moonraker_conf(
+                self.port, self._klippy_socket, opts.trusted_clients, self.webcam_url
+            )
         )
 
     def _spawn(self, name: str, command: list[str]) -> None:
@@ -298,7 +338,7 @@ class PrinterStack:
 
     def _tails(self) -> str:
         parts = []
-        for name in ("klippy.log", "moonraker.log", "klippy.out", "moonraker.out", "mcu.out"):
+        for name in _LOG_FILES:
             path = self.data_dir / "logs" / name
             if path.exists():
                 lines = path.read_text(errors="replace").splitlines()[-12:]
@@ -306,8 +346,11 @@ class PrinterStack:
         return "\n".join(parts)
 
 
-def render_moonraker_conf(port: int, klippy_socket: Path, trusted: tuple[str, ...]) -> str:
-    """A moonraker.conf for a local printer that never reaches out to the internet."""
+def render_moonraker_conf(
+    port: int, klippy_socket: Path, trusted: tuple[str, ...], webcam_url: str
+) -> str:
+    """A moonraker.conf for a local printer that never reaches out to the internet, with its
+    webcam registered as a real one is, so clients find it in ``/server/webcams/list``."""
     trusted_lines = "".join(f"\n    {net}" for net in trusted)
     return f"""\
 [server]
@@ -330,6 +373,16 @@ enable_moonlight: False
 
 [file_manager]
 enable_object_processing: False
+
+[webcam kybercam]
+location: printer
+# Snapshots polled at target_fps: what Mainsail and Fluidd suggest for many cameras.
+service: mjpegstreamer-adaptive
+target_fps: 2
+target_fps_idle: 1
+stream_url: {webcam_url}/stream
+snapshot_url: {webcam_url}/snapshot
+aspect_ratio: 4:3
 """
 
 
@@ -338,6 +391,12 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def _listening(port: int) -> bool:
+    """True when something accepts connections on ``127.0.0.1:port``."""
+    with socket.socket() as sock:
+        return sock.connect_ex(("127.0.0.1", port)) == 0
 
 
 def ensure_port_free(port: int, host: str = "127.0.0.1") -> None:
