@@ -6,10 +6,21 @@ import { t } from "./i18n.js";
 let counter = 0;
 
 /**
+ * @typedef {object} DialogButton
+ * @property {string} label
+ * @property {string} [value]
+ * @property {string} [kind] "primary", "danger", "danger ghost" or nothing
+ * @property {boolean} [cancel]
+ */
+
+/**
  * Open a modal. buttons: [{label, value, kind: "primary"|"danger"|"", cancel}]; the
  * promise resolves with the value of the button used (null when dismissed).
  * onSubmit(value, form) may run work with the dialog open: return false to keep it open
  * (e.g. to show validation messages), anything else closes it with that value.
+ * @param {{title: string, body: Node | string, buttons?: DialogButton[], wide?: boolean,
+ *   onSubmit?: (value: string, form: HTMLFormElement) => any, focus?: HTMLElement | null}} options
+ * @returns {Promise<any>}
  */
 export function modal({ title, body, buttons = [], onSubmit, wide = false, focus }) {
   return new Promise((resolve) => {
@@ -82,7 +93,11 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
   });
 }
 
-/** Ask before something drastic. Resolves true when confirmed. Cancel has the focus. */
+/**
+ * Ask before something drastic. Resolves true when confirmed. Cancel has the focus.
+ * @param {{title: string, message: string, confirmLabel: string, danger?: boolean, details?: any[]}} options
+ * @returns {Promise<boolean>}
+ */
 export async function confirmDialog({ title, message, confirmLabel, danger = false, details = [] }) {
   const body = h(
     "div",
@@ -104,7 +119,10 @@ export async function confirmDialog({ title, message, confirmLabel, danger = fal
 
 // -- toasts ---------------------------------------------------------------------------------
 
-/** A short message in the live region; errors stay until closed. */
+/**
+ * A short message in the live region; errors stay until closed.
+ * @param {{kind?: string, title?: string, message?: string, timeout?: number}} options
+ */
 export function toast({ kind = "info", title = "", message = "", timeout }) {
   const region = document.getElementById("toasts");
   keepAboveBulkBar(region);
