@@ -28,12 +28,23 @@ export function showNotificationsPage(page) {
   root.hidden = !show;
   if (show === shown) return;
   shown = show;
-  if (!show) {
+  if (show) refresh();
+  else stopLog();
+}
+
+/** Load what the user may see: channels and the log are an operator's, settings anyone's. */
+function refresh() {
+  loadSettings();
+  els.logSection.hidden = !can("operator");
+  if (!can("operator")) {
     stopLog();
+    channels = [];
+    for (const row of rows.values()) row.el.remove();
+    rows.clear();
+    showMessage();
     return;
   }
   loadChannels();
-  loadSettings();
   startLog();
 }
 
@@ -48,6 +59,7 @@ function build(root) {
     message: h("p", { class: "empty", role: "status" }),
   };
   const log = h("section", { class: "nt-section" });
+  els.logSection = log;
   const settings = h("section", { class: "nt-section" });
   root.setAttribute("aria-labelledby", "nt-title");
   root.append(
@@ -68,6 +80,7 @@ function build(root) {
   onSessionChange(() => {
     relabel();
     relabelSettings();
+    if (shown) refresh();
   });
   // Printer names in the channels' filters arrive with the fleet's first frame.
   subscribe((change) => change.full && relabel());
@@ -84,7 +97,8 @@ function relabel() {
 }
 
 function showMessage(error) {
-  const text = error ? messageOf(error) : channels.length ? "" : t("nt.no_channels");
+  const empty = can("operator") ? t("nt.no_channels") : t("nt.operators_only");
+  const text = error ? messageOf(error) : channels.length ? "" : empty;
   setText(els.message, text);
   els.message.hidden = !text;
 }
