@@ -92,8 +92,8 @@ def test_a_webhook_added_from_the_page_gets_a_signed_test_message(
     view.get_by_role("button", name="Add channel").click()
     form = page.get_by_role("dialog", name="Add a notification channel")
     expect(form.get_by_label("Webhook (JSON, signed)")).to_be_checked()
-    form.get_by_label("Name").fill(channel_name)
-    form.get_by_label("URL").fill(receiver.url("/hook"))
+    form.get_by_label("Name", exact=True).fill(channel_name)
+    form.get_by_label("URL", exact=True).fill(receiver.url("/hook"))
     # Events by severity, labelled by the backend; the defaults ticked.
     critical = form.get_by_role("group", name="Critical")
     expect(critical.get_by_label("Print failed")).to_be_checked()
@@ -102,12 +102,13 @@ def test_a_webhook_added_from_the_page_gets_a_signed_test_message(
     form.get_by_label("Hold messages back during quiet hours").check()
     form.get_by_label("From").fill("23:00")
     form.get_by_label("Until").fill("06:30")
+    page.screenshot(path=str(ARTIFACTS / "notifications-form.png"))
     form.get_by_role("button", name="Add channel").click()
 
     # The generated secret, shown this once.
     shown = page.get_by_role("dialog", name=f"Webhook secret for {channel_name}")
     expect(shown).to_contain_text("cannot show it again")
-    secret = shown.get_by_label("Secret").input_value()
+    secret = shown.get_by_label("Secret", exact=True).input_value()
     assert len(secret) >= 32
     shown.get_by_role("button", name="Done").click()
     expect(shown).to_be_hidden()
@@ -148,7 +149,7 @@ def test_a_webhook_added_from_the_page_gets_a_signed_test_message(
     )
     assert not verify("not the secret at all", request.headers[TIMESTAMP_HEADER.lower()],
                       request.body, request.headers[SIGNATURE_HEADER.lower()])  # fmt: skip
-    view.screenshot(path=str(ARTIFACTS / "notifications.png"))
+    page.screenshot(path=str(ARTIFACTS / "notifications.png"), full_page=True)
 
 
 def test_the_backends_refusals_show_next_to_their_fields(
@@ -159,8 +160,8 @@ def test_the_backends_refusals_show_next_to_their_fields(
     view = open_notifications(page, kybercore_server.url)
     view.get_by_role("button", name="Add channel").click()
     form = page.get_by_role("dialog", name="Add a notification channel")
-    form.get_by_label("Name").fill(channel_name)
-    form.get_by_label("URL").fill("ftp://files.example/hook")
+    form.get_by_label("Name", exact=True).fill(channel_name)
+    form.get_by_label("URL", exact=True).fill("ftp://files.example/hook")
     form.get_by_label("Webhook secret").fill("too-short")
     form.get_by_role("button", name="Add channel").click()
     secret_box = form.locator('[data-field="secret"]')
@@ -171,11 +172,11 @@ def test_the_backends_refusals_show_next_to_their_fields(
     form.get_by_role("button", name="Add channel").click()
     url_box = form.locator('[data-field="target"]')
     expect(url_box.locator(".field-error")).to_contain_text("http:// or https://")
-    expect(form.get_by_label("URL")).to_have_attribute("aria-invalid", "true")
+    expect(form.get_by_label("URL", exact=True)).to_have_attribute("aria-invalid", "true")
     expect(secret_box.locator(".field-error")).to_be_hidden()
 
     # Fixed, it goes through; nothing was stored by the refused attempt.
-    form.get_by_label("URL").fill("https://hooks.example/kybercore")
+    form.get_by_label("URL", exact=True).fill("https://hooks.example/kybercore")
     form.get_by_role("button", name="Add channel").click()
     page.get_by_role("dialog", name=f"Webhook secret for {channel_name}").get_by_role(
         "button", name="Done"
@@ -285,3 +286,4 @@ def test_the_page_fits_a_phone(
     assert box is not None
     assert box["width"] <= 390
     assert overflow() <= 0
+    page.screenshot(path=str(ARTIFACTS / "notifications-form-narrow.png"))
