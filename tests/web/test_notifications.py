@@ -287,3 +287,71 @@ def test_the_page_fits_a_phone(
     assert box["width"] <= 390
     assert overflow() <= 0
     page.screenshot(path=str(ARTIFACTS / "notifications-form-narrow.png"))
+
+
+def test_the_log_follows_a_retry_and_polls_only_while_shown(
+    page: Page,
+    kybercore_server: KyberCoreServer,
+    api: httpx.Client,
+    receiver: Receiver,
+    channel_name: str,
+) -> None:
+    receiver.refuse(lambda _request: True)
+    answer = api.post(
+        CHANNELS, json={"name": channel_name, "kind": "webhook", "target": receiver.url("/hook")}
+    )
+    assert answer.status_code == 201, answer.text
+    # The page's timers run on Playwright's clock: time can be pushed on, no waiting.
+    page.clock.install()
+    view = open_notifications(page, kybercore_server.url)
+    card = channel_card(view, channel_name)
+    card.get_by_role("button", name="Send test").click()
+    expect(card.get_by_role("status")).to_contain_text(re.compile(r"Not delivered yet: .*HTTP 500"))
+    row = view.locator(f'.nt-log tr[data-channel="{answer.json()["id"]}"]')
+    expect(row).to_have_attribute("data-status", "retrying")
+    expect(row.locator(".pill")).to_have_text("Retrying")
+    expect(row.locator(".nt-error")).to_contain_text("500")
+
+    # The receiver is back: the outbox's retry gets through, and the log, polling, shows it.
+    receiver.refuse(lambda _request: False)
+    expect(row).to_have_attribute("data-status", "delivered", timeout=60_000)
+    expect(row.locator(".pill")).to_have_text("Delivered")
+    assert len(receiver.accepted) == 1
+
+    # Count the log's requests in the page, as they are made (the network events that
+    # report them may come later than the clock's run).
+    page.evaluate(
+        """() => {
+            const fetchFirst = window.fetch;
+            window.logPolls = 0;
+            window.fetch = (url, ...rest) => {
+                if (String(url).includes("/api/notifications/deliveries")) window.logPolls++;
+                return fetchFirst(url, ...rest);
+            };
+        }"""
+    )
+
+    def polled_after(run_ms: int) -> int:
+        """How many log requests the page makes while its clock moves ``run_ms`` on."""
+        before = int(page.evaluate("window.logPolls"))
+        page.clock.run_for(run_ms)
+        return int(page.evaluate("window.logPolls")) - before
+
+    def quiet() -> bool:
+        """No log request in a few runs of the clock (a request in flight at the first
+        would have set its next one up by the last)."""
+        return all(polled_after(5_000) == 0 for _ in range(3))
+
+    # Shown and visible, it polls (unless a request is in flight just then: run again).
+    wait_until(lambda: polled_after(2_100) >= 1, what="the log polled")
+    hide = """hidden => {
+        Object.defineProperty(document, "hidden", { value: hidden, configurable: true });
+        document.dispatchEvent(new Event("visibilitychange"));
+    }"""
+    page.evaluate(hide, True)
+    assert quiet(), "the log polls while the tab is hidden"
+    with page.expect_request(re.compile(r"/api/notifications/deliveries")):
+        page.evaluate(hide, False)
+    page.get_by_role("link", name="Queue").click()
+    expect(view).to_be_hidden()
+    assert quiet(), "the log polls while another page is shown"

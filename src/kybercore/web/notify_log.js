@@ -129,7 +129,7 @@ export function statusText(status) {
 function row(item) {
   const status = statusOf(item);
   const printer = item.printer_id ? printers.get(item.printer_id)?.name || item.printer_id : t("nt.log.fleet");
-  const error = item.last_error ? (item.response_code ? `HTTP ${item.response_code}: ${item.last_error}` : item.last_error) : "";
+  const error = item.last_error || (item.response_code && status !== "delivered" ? `HTTP ${item.response_code}` : "");
   return h(
     "tr",
     { dataset: { id: String(item.id), channel: String(item.channel_id), status, kind: item.kind } },
