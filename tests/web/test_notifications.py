@@ -110,6 +110,8 @@ def test_a_webhook_added_from_the_page_gets_a_signed_test_message(
     expect(shown).to_contain_text("cannot show it again")
     secret = shown.get_by_label("Secret", exact=True).input_value()
     assert len(secret) >= 32
+    shown.get_by_role("button", name="Copy").click()
+    expect(shown.get_by_role("status")).to_have_text("Copied to the clipboard.")
     shown.get_by_role("button", name="Done").click()
     expect(shown).to_be_hidden()
 
@@ -237,11 +239,22 @@ def test_in_spanish_and_a_delete_asks_first(
 
     card.get_by_role("button", name="Editar").click()
     form = page.get_by_role("dialog", name=f"Editar {channel_name}")
-    expect(
-        form.get_by_role("group", name="Críticos").get_by_label("Impresión fallida")
-    ).to_be_checked()
+    critical = form.get_by_role("group", name="Críticos")
+    expect(critical.get_by_label("Impresión fallida")).to_be_checked()
     expect(form.get_by_role("group", name="Avisos")).to_be_visible()
-    form.get_by_role("button", name="Volver").click()
+    form.get_by_role("group", name="Información").get_by_label("Impresión iniciada").check()
+    form.get_by_role("button", name="Guardar").click()
+    expect(form).to_be_hidden()
+    expect(card).to_contain_text("Impresión fallida, Impresora desconectada, Impresión iniciada")
+    rules = next(c for c in api.get(CHANNELS).json() if c["id"] == channel_id)["rules"]
+    assert sorted(rules["events"]) == ["print_failed", "print_started", "printer_offline"]
+
+    # Switched off from its card, and on again.
+    card.get_by_label("Activo").uncheck()
+    expect(card).to_have_attribute("data-enabled", "false")
+    assert not next(c for c in api.get(CHANNELS).json() if c["id"] == channel_id)["enabled"]
+    card.get_by_label("Activo").check()
+    expect(card).to_have_attribute("data-enabled", "true")
 
     card.get_by_role("button", name="Eliminar").click()
     confirm = page.get_by_role("dialog", name=f"¿Eliminar {channel_name}?")

@@ -279,8 +279,11 @@ function eventsText(events) {
   const all = selectableKinds();
   if (all.length && all.every((k) => chosen.has(k.kind))) return t("nt.all_events");
   if (!chosen.size) return t("nt.no_events");
-  // Most severe first: those are the ones an operator checks for.
-  const rank = (kind) => SEVERITIES.indexOf(all.find((k) => k.kind === kind)?.severity);
+  // Most severe first (those are what an operator checks for), then in the backend's order.
+  const rank = (kind) => {
+    const index = all.findIndex((k) => k.kind === kind);
+    return index < 0 ? all.length * SEVERITIES.length : SEVERITIES.indexOf(all[index].severity) * all.length + index;
+  };
   const names = [...chosen].sort((a, b) => rank(a) - rank(b)).map((k) => kindLabel(k));
   const list = names.slice(0, SHOWN_EVENTS).join(", ");
   return names.length > SHOWN_EVENTS ? t("nt.events_more", { list, more: names.length - SHOWN_EVENTS }) : list;
