@@ -268,4 +268,3 @@ class NotifyService:
 
 def _utcnow() -> datetime:
     return datetime.now(UTC)
-
