@@ -140,7 +140,9 @@ async def test_roles_decide_who_reads_adds_changes_and_removes(
     assert (edited.status_code, edited.json()["enabled"]) == (200, False)
     # Raising it to admins only is an admin's to do.
     raised = {"rules": {"min_role": "admin"}}
-    assert (await api.call("operator", "PATCH", f"{channels}/{ops_id}", json=raised)).status_code == 403
+    assert (
+        await api.call("operator", "PATCH", f"{channels}/{ops_id}", json=raised)
+    ).status_code == 403
     admins = (await api.call("admin", "POST", channels, json=webhook(receiver))).json()["id"]
     for method in ("PATCH", "DELETE"):
         body = {"json": {"name": "x"}} if method == "PATCH" else {}

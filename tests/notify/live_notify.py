@@ -16,9 +16,9 @@ from kybercore.jobs.files import JobFiles
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
 from kybercore.notify.models import NoiseSettings
+from kybercore.notify.records import Channel
 from kybercore.notify.rules import ChannelRules
 from kybercore.notify.service import NotifyService
-from kybercore.notify.store import Channel
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry, write_printers
 from tests.notify.receiver import Receiver

@@ -58,7 +58,9 @@ async def engine(tmp_path: Path) -> AsyncIterator[AsyncEngine]:
 
 def config(stack: PrinterStack, location: str = "Room B") -> PrinterConfig:
     name = stack.options.name
-    return PrinterConfig(id=name, name=f"Printer {name}", location=location, moonraker_url=stack.url)
+    return PrinterConfig(
+        id=name, name=f"Printer {name}", location=location, moonraker_url=stack.url
+    )
 
 
 def client_of(notify: NotifyService, stack: PrinterStack) -> MoonrakerClient:
@@ -238,4 +240,3 @@ async def test_what_a_receiver_missed_across_a_restart_of_kybercore_arrives_once
             assert {d.status for d in log} == {"delivered"}
     finally:
         await receiver.stop()
-

@@ -52,14 +52,6 @@ async def engine(tmp_path: Path) -> AsyncIterator[AsyncEngine]:
     await database.dispose()
 
 
-@pytest.fixture
-async def receiver() -> AsyncIterator[Receiver]:
-    receiver = Receiver()
-    await receiver.start()
-    yield receiver
-    await receiver.stop()
-
-
 async def test_a_test_message_is_signed_and_answered_with_its_outcome(
     tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
 ) -> None:
