@@ -187,9 +187,7 @@ async def get_settings(notify: Notify) -> SettingsBody:
     return SettingsBody.of(notify.settings)
 
 
-@router.put(
-    "/api/notifications/settings", response_model=SettingsBody, responses=ERROR_RESPONSES
-)
+@router.put("/api/notifications/settings", response_model=SettingsBody, responses=ERROR_RESPONSES)
 async def put_settings(notify: Notify, _user: Admin, body: SettingsBody) -> SettingsBody:
     """Replace the noise settings; they apply at once."""
     await notify.apply_settings(body.settings())
@@ -239,6 +237,4 @@ async def _check_target(kind: ChannelKind, target: str) -> None:
 
 
 def _field_error(field: str, message: str) -> RequestValidationError:
-    return RequestValidationError(
-        [{"type": "value_error", "loc": ("body", field), "msg": message}]
-    )
+    return RequestValidationError([{"type": "value_error", "loc": ("body", field), "msg": message}])

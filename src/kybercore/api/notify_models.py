@@ -263,4 +263,3 @@ def webhook_url_problem(url: str) -> str | None:
     if parts.scheme not in ("http", "https") or not parts.hostname:
         return "must be an http:// or https:// URL with a host, e.g. https://hooks.example/kc"
     return None
-

@@ -95,9 +95,11 @@ def add(
     ] = "admin",
     secret: Annotated[
         str | None,
-        typer.Option(help="The webhook's signing key (at least 16 characters); generated "
-                     "when omitted.", show_default=False),
-    ] = None,  # fmt: skip
+        typer.Option(
+            help="The webhook's signing key (at least 16 characters); generated when omitted.",
+            show_default=False,
+        ),
+    ] = None,
     disabled: Annotated[bool, typer.Option("--disabled", help="Add it switched off.")] = False,
     url: ServerUrl = DEFAULT_URL,
     token: Token = None,
@@ -144,7 +146,7 @@ def remove(
 
 
 @notify_app.command("test")
-def test(channel_id: ChannelIdArg, url: ServerUrl = DEFAULT_URL, token: Token = None) -> None:
+def send_test(channel_id: ChannelIdArg, url: ServerUrl = DEFAULT_URL, token: Token = None) -> None:
     """Send a test message and say how it went (exit 1 unless it was delivered)."""
     with remote_errors(), Remote(url, token) as remote:
         delivery = remote.call("POST", f"{API}/channels/{channel_id}/test")

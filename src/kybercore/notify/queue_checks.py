@@ -162,7 +162,9 @@ class QueueChecks:
         ]
 
 
-def _blocked(job: Job, at: datetime, reason: str, reason_es: str, minutes: int | None) -> FleetEvent:
+def _blocked(
+    job: Job, at: datetime, reason: str, reason_es: str, minutes: int | None
+) -> FleetEvent:
     params: dict[str, Any] = {
         "job_id": job.id, "job_name": job.file.name, "state": job.state,
         "reason": reason, "reason_es": reason_es, "left": job.left,

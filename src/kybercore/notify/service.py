@@ -33,7 +33,7 @@ import httpx
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
-from kybercore.errors import KyberCoreError
+from kybercore.errors import ChannelNotFound, KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter
 from kybercore.jobs.service import QueueService
@@ -43,9 +43,10 @@ from kybercore.notify.models import FleetEvent, NoiseSettings, PrinterRef
 from kybercore.notify.noise import NoiseFilter
 from kybercore.notify.outbox import Outbox
 from kybercore.notify.queue_checks import QueueChecks
+from kybercore.notify.records import Channel, Delivery
 from kybercore.notify.rules import Route, route
 from kybercore.notify.snapshot import take_snapshot
-from kybercore.notify.store import Channel, Delivery, NotifyStore
+from kybercore.notify.store import NotifyStore
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +146,8 @@ class NotifyService:
         params = {"channel": channel.name, "user": user}
         event = FleetEvent("test", _utcnow(), None, params)
         pending = await self.store.record(event, None, {channel.id: "deliver"})
+        if not pending:  # removed meanwhile
+            raise ChannelNotFound(channel_id)
         self.outbox.wake()
         return await self.outbox.wait_outcome(pending[0], wait)
 
@@ -268,4 +271,3 @@ class NotifyService:
 
 def _utcnow() -> datetime:
     return datetime.now(UTC)
-

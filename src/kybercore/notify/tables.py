@@ -48,6 +48,7 @@ notify_channels: Final = Table(
     Column("created_at", UTCDateTime, nullable=False),
     Column("created_by", String(200), nullable=False),
     Column("updated_at", UTCDateTime, nullable=False),
+    Column("updated_by", String(200), nullable=False),
     CheckConstraint("kind IN ('webhook', 'apprise')", name="ck_notify_channels_kind"),
 )
 

@@ -38,6 +38,7 @@ def upgrade() -> None:
         _when("created_at"),
         sa.Column("created_by", sa.String(200), nullable=False),
         _when("updated_at"),
+        sa.Column("updated_by", sa.String(200), nullable=False),
         sa.CheckConstraint("kind IN ('webhook', 'apprise')", name="ck_notify_channels_kind"),
     )
 
@@ -55,9 +56,7 @@ def upgrade() -> None:
     op.create_table(
         "notify_deliveries",
         sa.Column("id", sa.Integer, primary_key=True),
-        sa.Column(
-            "event_id", sa.String(32), sa.ForeignKey("notify_events.id"), nullable=False
-        ),
+        sa.Column("event_id", sa.String(32), sa.ForeignKey("notify_events.id"), nullable=False),
         sa.Column(
             "channel_id",
             sa.Integer,
