@@ -10,6 +10,7 @@
     │   ├── KlippyNotReady            Moonraker is up, Klippy is not: wait
     │   └── MoonrakerRpcError         Moonraker refused this one call
     ├── UnknownPrinter                no printer with that id: check the id
+    ├── ChannelNotFound               no notification channel with that id: check the id
     ├── FileNotFound                  no such file (on a printer or here): check the name
     ├── ActionRejected                the action is not valid now (state, limits)
     ├── InvalidInput                  the request itself is malformed
@@ -107,6 +108,19 @@ class UnknownPrinter(KyberCoreError):
             "or `kybercore printers list`."
         )
         self.printer_id = printer_id
+
+
+class ChannelNotFound(KyberCoreError):
+    """No notification channel with that id exists."""
+
+    code = "channel_not_found"
+
+    def __init__(self, channel_id: int) -> None:
+        super().__init__(
+            f"No notification channel with id {channel_id}. List the channels with "
+            "GET /api/notifications/channels or `kybercore notify channels`."
+        )
+        self.channel_id = channel_id
 
 
 class FileNotFound(KyberCoreError):

@@ -42,10 +42,16 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
         "kybercore.fleet", "kybercore.moonraker", "kybercore.registry",
         "kybercore.jobs.models", "kybercore.jobs.tables",
     ),
+    # Notifications: events from the fleet and the queue, to webhooks and Apprise. The
+    # pure part (models, detector, noise, rules, texts) is held to no I/O below.
+    "notify": (
+        "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.db",
+        "kybercore.fleet", "kybercore.moonraker", "kybercore.registry", "kybercore.jobs",
+    ),
     "api": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
         "kybercore.moonraker", "kybercore.registry", "kybercore.jobs", "kybercore.db",
-        "kybercore.ledger",
+        "kybercore.ledger", "kybercore.notify",
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
     "cli": ("kybercore",),
@@ -67,7 +73,15 @@ FORBIDDEN: Final[dict[str, tuple[str, ...]]] = {
     "db": ("fastapi", "starlette", "typer", "uvicorn", "httpx", "picows"),
     "jobs": ("fastapi", "starlette", "typer", "uvicorn", "http"),
     "ledger": ("fastapi", "starlette", "typer", "uvicorn", "http"),
+    "notify": ("fastapi", "starlette", "typer", "uvicorn", "http"),
 }  # fmt: skip
+
+# Modules that decide without doing: the notifications' pure logic, driven by the service
+# with plain data and times, tested without a loop, a socket or a database.
+PURE: Final[dict[str, tuple[str, ...]]] = {
+    "notify": ("models", "detector", "noise", "rules", "texts"),
+}
+PURE_FORBIDDEN: Final = ("asyncio", "httpx", "sqlalchemy", "socket", "picows", "apprise", "anyio")
 
 # The style guide says ~100-400 lines; this is the hard stop (the MCU simulator's one class,
 # sim/firmware.py, is the largest at 440).
@@ -128,6 +142,33 @@ def test_the_check_catches_a_forbidden_import(tmp_path: Path) -> None:
         "def lazy():\n    from fastapi import FastAPI\n"
     )
     assert len(violations(tmp_path, "core")) == 3
+
+
+def impure_imports(path: Path) -> list[str]:
+    """Every import in ``path`` of a module that does I/O (or runs a loop)."""
+    return [
+        f"{path.name}:{line} imports {name}"
+        for line, name in _imports(path)
+        if any(_within(name, banned) for banned in PURE_FORBIDDEN)
+    ]
+
+
+@pytest.mark.parametrize(
+    "module", [f"{package}/{name}.py" for package, names in PURE.items() for name in names]
+)
+def test_the_pure_modules_import_nothing_that_does_io(module: str) -> None:
+    path = PACKAGE / module
+    assert path.exists(), f"{module} is listed as pure but does not exist"
+    assert impure_imports(path) == []
+
+
+def test_the_purity_check_catches_io(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "import asyncio\nfrom sqlalchemy import select\n"
+        "def lazy():\n    import httpx.client\n    from socket import socket\n"
+    )
+    assert len(impure_imports(bad)) == 4
 
 
 def test_no_module_grows_past_the_size_a_reader_holds_in_mind() -> None:

@@ -16,6 +16,8 @@ resource:
   gates (``/api/printers/{id}/clear|hold|release``): the job queue;
 - :mod:`kybercore.api.history`: ``/api/history``, ``/api/history.csv``, ``/api/stats``:
   the ledger's job history and statistics; :mod:`kybercore.api.metrics`: ``/metrics``;
+- :mod:`kybercore.api.notifications`: ``/api/notifications/...``: notification channels,
+  their deliveries, the noise settings;
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.audit`: ``/api/audit``, the audit log (admins);
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
@@ -25,7 +27,8 @@ Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first; every 
 is recorded in the audit log by :class:`~kybercore.api.recorder.AuditMiddleware`.
 
 The lifespan opens the queue's database (SQLite beside printers.json unless a URL is
-given), then starts the fleet and the queue; it stops them in the reverse order.
+given), then starts the fleet, the queue, the ledger and the notifications; it stops them
+in the reverse order.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ from kybercore.api import (
     history,
     jobs,
     metrics,
+    notifications,
     printers,
     session,
     temperatures,
@@ -77,6 +81,7 @@ from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
+from kybercore.notify.service import NotifyService
 from kybercore.registry.store import PrinterRegistry
 
 WEB_DIR: Final = Path(__file__).parent.parent / "web"
@@ -94,13 +99,15 @@ def create_app(
     allowed_hosts: HostAllowlist | None = None,
     database_url: str | None = None,
     queue_options: Mapping[str, Any] | None = None,
+    notify_options: Mapping[str, Any] | None = None,
     on_started: OnStarted | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
     (plus any IP address) unless told; the queue's database at ``database_url`` (default:
-    SQLite beside printers.json); ``queue_options`` go to :class:`QueueService` and
-    ``service_options`` to :class:`FleetService`."""
+    SQLite beside printers.json); ``queue_options`` go to :class:`QueueService`,
+    ``notify_options`` to :class:`NotifyService` and ``service_options`` to
+    :class:`FleetService`."""
     folder = registry.path.parent
 
     @asynccontextmanager
@@ -122,11 +129,17 @@ def create_app(
                 await ledger.start()
                 app.state.ledger = ledger
                 # ---------------------------------------------------------------------
+                # -- notifications (issue 18): events to webhooks and Apprise ---------
+                notify = NotifyService(service, queue, engine, http, **(notify_options or {}))
+                await notify.start()
+                app.state.notify = notify
+                # ---------------------------------------------------------------------
                 started = asyncio.create_task(on_started(service, queue)) if on_started else None
                 try:
                     yield
                 finally:
                     await cancel_and_wait(started)
+                    await notify.stop()
                     await ledger.stop()
                     await queue.stop()
                     await service.stop()
@@ -160,6 +173,7 @@ def create_app(
         app.include_router(module.router)
     for module in (history, metrics):  # the ledger (issue 17)
         app.include_router(module.router)
+    app.include_router(notifications.router)  # notifications (issue 18)
     add_docs(app)
 
     @app.get("/", include_in_schema=False)

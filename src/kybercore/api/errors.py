@@ -27,6 +27,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from kybercore.errors import (
     AccessDenied,
     ActionRejected,
+    ChannelNotFound,
     ConfigError,
     FileNotFound,
     InvalidInput,
@@ -46,6 +47,7 @@ log = logging.getLogger(__name__)
 # Most specific first: PrinterTimeout is a PrinterUnreachable.
 _STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
     (UnknownPrinter, 404),
+    (ChannelNotFound, 404),
     (FileNotFound, 404),
     (ActionRejected, 409),
     (KlippyNotReady, 409),

@@ -50,6 +50,11 @@ ACTIONS: Final = {
     ("POST", "/api/jobs/{job_id}/move"): "job.move",
     ("POST", "/api/jobs/{job_id}/requeue"): "job.requeue",
     ("POST", "/api/queue"): "queue.change",
+    ("POST", "/api/notifications/channels"): "channel.add",
+    ("PATCH", "/api/notifications/channels/{channel_id}"): "channel.edit",
+    ("DELETE", "/api/notifications/channels/{channel_id}"): "channel.remove",
+    ("POST", "/api/notifications/channels/{channel_id}/test"): "channel.test",
+    ("PUT", "/api/notifications/settings"): "notify.settings",
     ("POST", "/api/session"): "session.login",
     ("DELETE", "/api/session"): "session.logout",
 }
@@ -57,7 +62,7 @@ ACTIONS: Final = {
 function's name."""
 
 BULK_ROUTE: Final = "/api/fleet/actions/{action}"
-TARGETS: Final = {"printer_id": "printer", "job_id": "job"}
+TARGETS: Final = {"printer_id": "printer", "job_id": "job", "channel_id": "channel"}
 """Path parameters that name an action's target, and the kind of target."""
 REQUEST_ID_HEADER: Final = "x-request-id"
 _REQUEST_ID: Final = re.compile(r"[A-Za-z0-9._:-]{1,64}")

@@ -1,5 +1,5 @@
-"""The ``kybercore`` command: serve the dashboard, run a demo fleet, manage printers and
-the job queue.
+"""The ``kybercore`` command: serve the dashboard, run a demo fleet, manage printers, the
+job queue and the notifications.
 
 Only what every command needs is imported here; FastAPI, uvicorn and the simulator are
 imported by the commands that use them, so ``kybercore printers list`` starts fast.
@@ -12,6 +12,7 @@ import typer
 from kybercore import __version__
 from kybercore.cli import serve as serve_commands
 from kybercore.cli.jobs import jobs_app
+from kybercore.cli.notify import notify_app
 from kybercore.cli.output import console
 from kybercore.cli.printers import printers_app
 from kybercore.cli.tokens import tokens_app
@@ -23,6 +24,7 @@ app = typer.Typer(
 )
 app.add_typer(printers_app, name="printers")
 app.add_typer(jobs_app, name="jobs")
+app.add_typer(notify_app, name="notify")
 app.add_typer(tokens_app, name="tokens")
 for command in (serve_commands.serve, serve_commands.demo, serve_commands.sim):
     app.command()(command)

@@ -80,6 +80,16 @@ export const api = {
   history: (query) => request("GET", `/api/history?${queryString(query)}`),
   historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,
   stats: (query) => request("GET", `/api/stats?${queryString(query)}`),
+  // Notifications: channels, a test message, the delivery log, noise control, event kinds.
+  notifyChannels: () => request("GET", "/api/notifications/channels"),
+  addNotifyChannel: (body) => request("POST", "/api/notifications/channels", body),
+  updateNotifyChannel: (id, body) => request("PATCH", `/api/notifications/channels/${enc(id)}`, body),
+  removeNotifyChannel: (id) => request("DELETE", `/api/notifications/channels/${enc(id)}`),
+  testNotifyChannel: (id) => request("POST", `/api/notifications/channels/${enc(id)}/test`),
+  notifyDeliveries: (query) => request("GET", `/api/notifications/deliveries?${queryString(query)}`),
+  notifySettings: () => request("GET", "/api/notifications/settings"),
+  saveNotifySettings: (body) => request("PUT", "/api/notifications/settings", body),
+  notifyKinds: () => request("GET", "/api/notifications/kinds"),
 };
 
 /** "a=1&b=x" from an object; empty values left out. */

@@ -11,6 +11,7 @@ import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
 import { LEDGER_PAGES, showLedgerPage } from "./ledger_views.js";
+import { NOTIFY_HASH, showNotificationsPage } from "./notifications.js";
 import { initQueue, relabelQueue } from "./queue.js";
 import { refreshQueue } from "./queue_data.js";
 import { can, currentSession, loadSession, login, logout, needsLogin, onSessionChange } from "./session.js";
@@ -102,12 +103,15 @@ function applySession() {
   $("add-printer").hidden = !can("admin");
 }
 
-/** Printers, Queue, History or Statistics, from the address (#queue...), so any can be bookmarked. */
+/** Printers, Queue, History, Statistics or Notifications, from the address (#queue...), so
+ * any can be bookmarked. */
 function route() {
-  const page = location.hash === "#queue" ? "queue" : LEDGER_PAGES[location.hash] || "fleet";
+  const hash = location.hash;
+  const page = hash === "#queue" ? "queue" : hash === NOTIFY_HASH ? "notifications" : LEDGER_PAGES[hash] || "fleet";
   document.body.dataset.page = page;
   $("queue-view").hidden = page !== "queue";
   showLedgerPage(page);
+  showNotificationsPage(page);
   $("fleet").hidden = page !== "fleet";
   document.querySelector(".toolbar").hidden = page !== "fleet";
   for (const link of document.querySelectorAll("[data-page]")) {

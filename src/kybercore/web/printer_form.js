@@ -119,14 +119,22 @@ function boxFor(form, path) {
   return null;
 }
 
-/** Put the backend's per-field problems (422 `fields`) under the fields they name; the
- * rest, and any other error, on top. */
-function showErrors(form, error) {
+/** Take the error messages of showErrors away. */
+export function clearErrors(form) {
   for (const el of form.querySelectorAll(".field-error")) {
     el.hidden = true;
     el.textContent = "";
   }
   for (const el of form.querySelectorAll("[aria-invalid]")) el.removeAttribute("aria-invalid");
+  const top = form.querySelector(".form-error");
+  if (top) top.hidden = true;
+}
+
+/** Put the backend's per-field problems (422 `fields`) under the fields they name (boxes
+ * marked data-field, with a .field-error), the rest, and any other error, in the form's
+ * .form-error. Shared with the notification forms. */
+export function showErrors(form, error) {
+  clearErrors(form);
   const general = [];
   let first = null;
   for (const problem of error.fields || []) {
@@ -136,7 +144,7 @@ function showErrors(form, error) {
       general.push(`${problem.field}: ${message}`);
       continue;
     }
-    const input = box.querySelector("input, textarea");
+    const input = box.querySelector("input, textarea, select");
     const note = box.querySelector(".field-error");
     note.textContent = note.textContent ? `${note.textContent} ${message}` : message;
     note.hidden = false;

@@ -2,5 +2,6 @@
 import { en } from "./strings_en.js";
 import { es } from "./strings_es.js";
 import { ledger } from "./strings_ledger.js";
+import { notify } from "./strings_notify.js";
 
-export const STRINGS = { en: { ...en, ...ledger.en }, es: { ...es, ...ledger.es } };
+export const STRINGS = { en: { ...en, ...ledger.en, ...notify.en }, es: { ...es, ...ledger.es, ...notify.es } };

@@ -1,0 +1,195 @@
+"""The notification service without live printers: a fleet whose printers are unreachable,
+the queue's real store on SQLite, and a real webhook receiver on loopback.
+
+Tests, settings and the queue's own findings (plates waiting, jobs blocked) need no
+printer; what the printers' transitions send is tested in test_live.py.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from dataclasses import replace
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from sqlalchemy.ext.asyncio import AsyncEngine
+
+from kybercore.db import default_database_url, open_database
+from kybercore.jobs.store import JobStore
+from kybercore.moonraker.events import StatusDelta
+from kybercore.notify.models import NoiseSettings
+from kybercore.notify.rules import QuietHours
+from kybercore.notify.senders import SIGNATURE_HEADER, TIMESTAMP_HEADER, verify
+from kybercore.registry.models import PrinterConfig
+from kybercore.sim.stack import free_port
+from tests.helpers import wait_for
+from tests.jobs.conftest import new_job
+from tests.notify.live_notify import FAST, SECRET, add_webhook, kinds, received, running_notify
+from tests.notify.receiver import Receiver
+
+DELIVERED_WITHIN = 10.0
+"""A delivery to a loopback receiver takes milliseconds; a retry 0.2 s: 10 s of slack."""
+
+
+def unreachable(*ids: str, location: str = "Lab") -> list[PrinterConfig]:
+    """Printers whose Moonraker is not there (a port nobody listens on)."""
+    return [
+        PrinterConfig(
+            id=pid, name=f"Printer {pid}", location=location,
+            moonraker_url=f"http://127.0.0.1:{free_port()}",
+        )
+        for pid in ids
+    ]  # fmt: skip
+
+
+@pytest.fixture
+async def engine(tmp_path: Path) -> AsyncIterator[AsyncEngine]:
+    database = await open_database(default_database_url(tmp_path))
+    yield database
+    await database.dispose()
+
+
+async def test_a_test_message_is_signed_and_answered_with_its_outcome(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
+) -> None:
+    async with running_notify([], tmp_path, http, engine) as notify:
+        channel = await add_webhook(notify, receiver)
+        delivery = await notify.send_test(channel.id, "alice")
+        assert (delivery.status, delivery.response_code, delivery.attempts) == ("delivered", 200, 1)
+        [request] = receiver.accepted
+        assert verify(
+            SECRET, request.headers[TIMESTAMP_HEADER.lower()], request.body,
+            request.headers[SIGNATURE_HEADER.lower()],
+        )  # fmt: skip
+        body = request.json()
+        assert (body["type"], body["id"], body["printer"]) == ("test", delivery.event_id, None)
+        assert body["title"]
+        assert [d.id for d in await notify.store.deliveries(channel.id)] == [delivery.id]
+
+
+async def test_a_test_to_a_receiver_that_is_down_answers_pending_with_the_error(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    down = Receiver()  # never started: connections are refused
+    async with running_notify([], tmp_path, http, engine) as notify:
+        channel = await add_webhook(notify, down)
+        delivery = await notify.send_test(channel.id, "alice", wait=DELIVERED_WITHIN)
+        assert (delivery.status, delivery.attempts) == ("pending", 1)
+        assert "Could not reach" in delivery.last_error
+        assert delivery.next_at is not None
+
+
+async def test_settings_apply_at_once_and_outlive_a_restart(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    tuned = NoiseSettings(cooldown_s=42.0, fold_window_s=3.0, storm_threshold=7)
+    async with running_notify([], tmp_path, http, engine) as notify:
+        await notify.apply_settings(tuned)
+        assert notify.settings == tuned
+    async with running_notify([], tmp_path, http, engine, settings=tuned) as again:
+        assert again.settings == tuned
+        assert await again.store.settings() == tuned
+
+
+async def test_a_plate_left_waiting_is_told_once_with_its_job(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
+) -> None:
+    printers = unreachable("p1")
+    async with running_notify(printers, tmp_path, http, engine) as notify:
+        await add_webhook(notify, receiver)
+        store = notify.queue.store
+        job = await store.create_job(new_job(name="bracket.gcode"), "alice")
+        attempt = await store.reserve(job.id, "p1")
+        assert attempt is not None
+        await store.finish(attempt.id, "completed")
+
+        await wait_for(lambda: received(receiver, kind="plate_waiting"), DELIVERED_WITHIN,
+                       "the plate_waiting message")  # fmt: skip
+        rounds = notify.checks.rounds
+        await wait_for(lambda: notify.checks.rounds >= rounds + 3, DELIVERED_WITHIN, "3 rounds")
+        [told] = received(receiver, kind="plate_waiting")
+        assert told["printer"]["id"] == "p1"
+        assert (told["data"]["job_id"], told["data"]["job_name"]) == (job.id, "bracket.gcode")
+        assert kinds(receiver) == ["plate_waiting"]
+
+
+async def test_a_job_no_printer_can_take_is_told_blocked_with_the_reasons_once(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
+) -> None:
+    now = datetime.now()
+    quiet = QuietHours(
+        (now - timedelta(hours=1)).strftime("%H:%M"), (now + timedelta(hours=1)).strftime("%H:%M")
+    )
+    async with running_notify(unreachable("p1", "p2"), tmp_path, http, engine) as notify:
+        await add_webhook(notify, receiver)
+        asleep = await add_webhook(notify, receiver, "/asleep", quiet_hours=quiet)
+        job = await notify.queue.store.create_job(new_job(quantity=2), "alice")
+
+        await wait_for(lambda: received(receiver, kind="job_blocked"), DELIVERED_WITHIN,
+                       "the job_blocked message")  # fmt: skip
+        rounds = notify.checks.rounds
+        await wait_for(lambda: notify.checks.rounds >= rounds + 3, DELIVERED_WITHIN, "3 rounds")
+        [told] = received(receiver, kind="job_blocked")
+        assert (told["printer"], told["data"]["job_id"], told["data"]["left"]) == (None, job.id, 2)
+        assert "p1: " in told["data"]["reason"]
+        assert "p2: " in told["data"]["reason"]
+        # A warning in quiet hours is recorded for that channel, never sent.
+        [held] = await notify.store.deliveries(asleep.id)
+        assert (held.kind, held.status) == ("job_blocked", "quiet_hours")
+        assert received(receiver, "/asleep") == []
+
+
+async def test_a_job_the_queue_blocks_after_its_failures_is_told_at_once(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
+) -> None:
+    slow = replace(FAST, plate_wait_s=3600.0, job_blocked_s=3600.0)
+    async with running_notify(unreachable("p1"), tmp_path, http, engine, slow) as notify:
+        await add_webhook(notify, receiver)
+        store: JobStore = notify.queue.store
+        job = await store.create_job(new_job(max_attempts=1), "alice")
+        rounds = notify.checks.rounds
+        await wait_for(lambda: notify.checks.rounds > rounds, DELIVERED_WITHIN, "a first round")
+        attempt = await store.reserve(job.id, "p1")
+        assert attempt is not None
+        await store.finish(attempt.id, "failed", reason="Heater extruder not heating")
+
+        await wait_for(lambda: received(receiver, kind="job_blocked"), DELIVERED_WITHIN,
+                       "the job_blocked message")  # fmt: skip
+        [told] = received(receiver, kind="job_blocked")
+        assert told["data"]["state"] == "blocked"
+        assert "not heating" in told["data"]["reason"]
+
+
+async def test_the_listener_skips_updates_nothing_reads_and_never_raises(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    async with running_notify(unreachable("p1"), tmp_path, http, engine) as notify:
+        calls: list[Any] = []
+        notify._observe = calls.append  # type: ignore[method-assign]
+        notify._on_event("p1", StatusDelta({"extruder": {"temperature": 200.0}}, 1.0))
+        assert calls == []
+        notify._on_event("p1", StatusDelta({"print_stats": {"state": "printing"}}, 1.0))
+        assert len(calls) == 1
+        # A printer the fleet no longer has: logged, not raised into the fleet.
+        notify._on_event("gone", StatusDelta({"print_stats": {"state": "printing"}}, 1.0))
+
+
+async def test_stopping_records_the_events_still_held_for_folding(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    held = replace(FAST, fold_window_s=3600.0)
+    async with running_notify(unreachable("p1"), tmp_path, http, engine, held) as notify:
+        channel = await add_webhook(notify, Receiver())  # down: what is recorded stays
+        store = notify.queue.store
+        attempt = await store.reserve((await store.create_job(new_job(), "alice")).id, "p1")
+        assert attempt is not None
+        await store.finish(attempt.id, "completed")
+        rounds = notify.checks.rounds
+        await wait_for(lambda: notify.checks.rounds >= rounds + 2, DELIVERED_WITHIN, "2 rounds")
+        assert await notify.store.deliveries(channel.id) == []  # held for an hour
+    # The window had an hour to go: the stop recorded it for the next start to send.
+    [recorded] = await notify.store.deliveries(channel.id)
+    assert (recorded.kind, recorded.status) == ("plate_waiting", "pending")
