@@ -82,6 +82,7 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
     "queue": _page("queue"),
     "history": _page("history"),
     "stats": _page("stats"),
+    "notifications": _page("notifications"),
 }
 
 

@@ -15,6 +15,7 @@ import { printers } from "./store.js";
  */
 export const CONFIRM = new Set(["cancel", "firmware_restart", "restart"]);
 
+/** @type {{openDrawer: (id: string, tab?: string) => any, editPrinter: (id: string) => any, removePrinter: (id: string) => any}} */
 let panels = { openDrawer: () => {}, editPrinter: () => {}, removePrinter: () => {} };
 
 export function initActions(handlers) {

@@ -10,6 +10,7 @@ let attempt = 0;
 let consoleIds = [];
 let watchdog = null;
 let retryTimer = null;
+/** @type {{onEvent: (frame: any) => void, onStatus: (status: any) => void}} */
 let handlers = { onEvent: () => {}, onStatus: () => {} };
 
 /** Start the connection. onStatus({state: "connecting"|"live"|"down", retryAt, since}). */

@@ -18,6 +18,7 @@ let frame = 0;
 let orderDirty = true;
 let facetsKey = "";
 let countsKey = "";
+/** @type {{onAction: (...args: any[]) => void, onSelection: () => void, onDropFiles: (...args: any[]) => void}} */
 let hooks = { onAction: () => {}, onSelection: () => {}, onDropFiles: () => {} };
 
 function loadView() {
