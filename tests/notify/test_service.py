@@ -7,7 +7,7 @@ printer; what the printers' transitions send is tested in test_live.py.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -30,8 +30,20 @@ from tests.jobs.conftest import new_job
 from tests.notify.live_notify import FAST, SECRET, add_webhook, kinds, received, running_notify
 from tests.notify.receiver import Receiver
 
+README = Path(__file__).parents[2] / "README.md"
 DELIVERED_WITHIN = 10.0
 """A delivery to a loopback receiver takes milliseconds; a retry 0.2 s: 10 s of slack."""
+
+
+def readme_verify() -> Callable[..., bool]:
+    """The signature check the README gives webhook receivers (its Python block after
+    "### The webhook"), compiled from the README itself."""
+    text = README.read_text()
+    code = text[text.index("### The webhook") :].split("```python\n", 1)[1].split("```", 1)[0]
+    namespace: dict[str, Any] = {}
+    exec(compile(code, str(README), "exec"), namespace)  # our own README's snippet
+    verify: Callable[..., bool] = namespace["verify"]
+    return verify
 
 
 def unreachable(*ids: str, location: str = "Lab") -> list[PrinterConfig]:
@@ -64,6 +76,12 @@ async def test_a_test_message_is_signed_and_answered_with_its_outcome(
             SECRET, request.headers[TIMESTAMP_HEADER.lower()], request.body,
             request.headers[SIGNATURE_HEADER.lower()],
         )  # fmt: skip
+        # The README's snippet agrees, and refuses a body changed in transit or a stale one.
+        readme = readme_verify()
+        assert readme(SECRET, request.headers, request.body)
+        assert not readme(SECRET, request.headers, request.body + b" ")
+        assert not readme("another-secret-of-the-same-length-0123", request.headers, request.body)
+        assert not readme(SECRET, request.headers, request.body, max_age=-1)
         body = request.json()
         assert (body["type"], body["id"], body["printer"]) == ("test", delivery.event_id, None)
         assert body["title"]
