@@ -6,14 +6,17 @@ neighbour that must stay silent (idle vs printing offline, complete seen twice, 
 
 from __future__ import annotations
 
+import ast
 from collections.abc import Iterable
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import kybercore.notify
 from kybercore.core.view import LivePrinter
 from kybercore.notify.detector import Detector, Observation, observe
 from kybercore.notify.models import FleetEvent, NoiseSettings, PrinterRef
@@ -320,6 +323,36 @@ def test_observe_is_not_fooled_by_odd_values() -> None:
     )
     live.status["print_stats"]["info"] = {"current_layer": True}
     assert observe(live).layer is None
+
+
+# --- purity ---------------------------------------------------------------------------------
+
+PURE = ("__init__", "models", "detector", "noise", "rules", "texts")
+PURE_MAY_IMPORT = (
+    "kybercore.notify", "kybercore.core.view", "kybercore.registry.models",
+    "kybercore.moonraker.objects", "__future__", "collections", "dataclasses", "datetime",
+    "re", "typing", "uuid",
+)  # fmt: skip
+
+
+def test_the_pure_modules_import_nothing_that_does_io() -> None:
+    folder = Path(kybercore.notify.__file__).parent
+    found = []
+    for name in PURE:
+        tree = ast.parse((folder / f"{name}.py").read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                modules = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                modules = [node.module or ""]
+            else:
+                continue
+            found += [
+                f"{name}: {module}"
+                for module in modules
+                if not any(f"{module}.".startswith(f"{ok}.") for ok in PURE_MAY_IMPORT)
+            ]
+    assert found == []
 
 
 # --- property: a recovery always ends an alert ----------------------------------------------

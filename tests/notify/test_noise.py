@@ -282,16 +282,16 @@ def test_noise_never_repeats_within_cooldown_nor_recovers_what_it_did_not_tell(
             out += [(now, e) for e in f.release(now)]
     out += [(now + fold, e) for e in f.release(now + fold)]
     for when, event in out:
-        for pid, kind in _members(event):
-            if kind == "test":
+        for pid, told in _members(event):
+            if told == "test":
                 continue
-            if kind == "printer_recovered":
+            if told == "printer_recovered":
                 key = (pid, event.params["what"])
                 assert key in open_alerts, f"{pid}: recovery of {key[1]} with no alert told"
                 open_alerts.remove(key)
                 continue
-            previous = last_out.get((pid, kind))
-            assert previous is None or when - previous >= cooldown, (pid, kind, previous, when)
-            last_out[(pid, kind)] = when
-            if kind in _GROUP:
-                open_alerts.add((pid, _GROUP[kind]))
+            previous = last_out.get((pid, told))
+            assert previous is None or when - previous >= cooldown, (pid, told, previous, when)
+            last_out[(pid, told)] = when
+            if told in _GROUP:
+                open_alerts.add((pid, _GROUP[told]))
