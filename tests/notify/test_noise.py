@@ -222,6 +222,10 @@ def test_plates_of_one_location_say_where() -> None:
     f.push(ev("plate_waiting", printer(2)), 0.0)
     [plates] = f.release(20.0)
     assert plates.params["location"] == "Room B"
+    f.push(ev("plate_waiting", printer(3, None)), 30.0)
+    f.push(ev("plate_waiting", printer(4, None)), 30.0)
+    [nowhere] = f.release(50.0)
+    assert "location" not in nowhere.params
 
 
 def test_new_settings_apply_to_the_next_event() -> None:

@@ -164,9 +164,10 @@ class NoiseFilter:
             return events
         if kind == "printer_recovered":
             return [_folded(kind, events, location=location, what="connection")]
+        # Plates fold fleet-wide; when they all stand in one place, say where.
         locations = {event.printer.location if event.printer else None for event in events}
-        shared = {"location": locations.pop()} if len(locations) == 1 else {}
-        return [_folded(kind, events, **shared)]
+        place = locations.pop() if len(locations) == 1 else None
+        return [_folded(kind, events, **({"location": place} if place else {}))]
 
 
 def _folded(kind: EventKind, events: list[FleetEvent], **params: Any) -> FleetEvent:
