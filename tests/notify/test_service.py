@@ -15,6 +15,7 @@ from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import text
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import default_database_url, open_database
@@ -211,3 +212,27 @@ async def test_stopping_records_the_events_still_held_for_folding(
     # The window had an hour to go: the stop recorded it for the next start to send.
     [recorded] = await notify.store.deliveries(channel.id)
     assert (recorded.kind, recorded.status) == ("plate_waiting", "pending")
+
+
+async def test_a_database_failure_is_logged_and_the_service_goes_on(
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+    engine: AsyncEngine,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    async with running_notify(unreachable("p1", "p2"), tmp_path, http, engine) as notify:
+        async with engine.begin() as conn:  # the channels' table gone: every event fails
+            await conn.execute(text("DROP TABLE notify_channels"))
+        store = notify.queue.store
+        attempt = await store.reserve((await store.create_job(new_job(), "al")).id, "p1")
+        assert attempt is not None
+        await store.finish(attempt.id, "completed")
+        await store.create_job(new_job(), "al")
+
+        def failures() -> int:
+            return sum("could not be recorded" in r.getMessage() for r in caplog.records)
+
+        # Two events (the plate waiting, the job blocked), each failing on its own.
+        await wait_for(lambda: failures() >= 2, DELIVERED_WITHIN, "both failures logged")
+        ticks = notify.ticks
+        await wait_for(lambda: notify.ticks > ticks + 2, DELIVERED_WITHIN, "the ticks go on")
