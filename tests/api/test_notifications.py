@@ -173,6 +173,18 @@ async def test_edits_apply_and_unknown_channels_are_404(api: Api, receiver: Rece
         "night", ["print_failed"], "es",
     )  # fmt: skip
     assert rules["quiet_hours"] == {"start": "22:00", "end": "07:00", "allow_critical": False}
+    # A new secret is taken, never shown, and signs from now on.
+    rotated = "a-brand-new-secret-0123456789"
+    path = f"{channels}/{created['id']}"
+    answer = await api.call("admin", "PATCH", path, json={"secret": rotated})
+    assert (answer.status_code, answer.json()["has_secret"]) == (200, True)
+    assert rotated not in answer.text
+    assert (await api.call("admin", "POST", f"{path}/test")).json()["status"] == "delivered"
+    request = receiver.accepted[-1]
+    timestamp, signature = (
+        request.headers[h] for h in ("x-kybercore-timestamp", "x-kybercore-signature")
+    )
+    assert verify(rotated, timestamp, request.body, signature)
     for method, path in (
         ("PATCH", f"{channels}/999"),
         ("DELETE", f"{channels}/999"),

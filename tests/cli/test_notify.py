@@ -91,7 +91,8 @@ async def test_add_list_test_and_read_the_deliveries_of_a_webhook(
 
     log = await run(url, "notify", "deliveries", "--channel", channel_id)
     assert log.exit_code == 0, log.output
-    assert re.search(r"night shift.*Notificación de prueba.*delivered\W+1\b", log.stdout), log.stdout
+    row = r"night shift.*Notificación de prueba.*delivered\W+1\b"
+    assert re.search(row, log.stdout), log.stdout
 
 
 async def test_a_failed_test_a_bad_url_and_the_settings(server: KyberCoreServer) -> None:

@@ -24,15 +24,17 @@ from kybercore.jobs.store import JobStore
 from kybercore.jobs.tables import metadata as queue_tables
 from kybercore.ledger.audit import metadata as audit_tables
 from kybercore.ledger.tables import metadata as ledger_tables
+from kybercore.notify.tables import metadata as notify_tables
 from kybercore.sim.stack import free_port
 
 NEW = NewJob(JobFile("0" * 64, "cube.gcode", 100), quantity=2)
 
 
 def _every_table() -> MetaData:
-    """The tables of every part that owns some (queue, ledger, audit), as one schema."""
+    """The tables of every part that owns some (queue, ledger, audit, notifications), as one
+    schema."""
     schema = MetaData()
-    for part in (queue_tables, ledger_tables, audit_tables):
+    for part in (queue_tables, ledger_tables, audit_tables, notify_tables):
         for table in part.tables.values():
             table.to_metadata(schema)
     return schema

@@ -3,9 +3,9 @@ on 127.0.0.1 that records every request, as a webhook receiver, an Apprise ``jso
 ``form://`` target, or a webcam would see them.
 
 It can be told to answer errors first (:meth:`Receiver.fail_next`), to refuse some requests
-(:meth:`Receiver.refuse`), to serve fixed content (:meth:`Receiver.serve`, for a webcam's
-snapshot), and it can be stopped and started again on the same port (a receiver that is
-down, then back).
+(:meth:`Receiver.refuse`), to hang (:meth:`Receiver.hold`), to serve fixed content
+(:meth:`Receiver.serve`, for a webcam's snapshot), and it can be stopped and started again
+on the same port (a receiver that is down, then back).
 """
 
 from __future__ import annotations
@@ -64,6 +64,9 @@ class Receiver:
         self._server: uvicorn.Server | None = None
         self._task: asyncio.Task[None] | None = None
         self._released = asyncio.Event()
+        self._holding = False
+        self.held = 0
+        """POSTs that arrived while holding (:meth:`hold`)."""
 
     def url(self, path: str = "/hook") -> str:
         """This receiver's URL for ``path``."""
@@ -81,6 +84,11 @@ class Receiver:
     def refuse(self, when: Callable[[Received], bool]) -> None:
         """Answer 500 to every POST for which ``when`` is true (from now on)."""
         self._refuse = when
+
+    def hold(self) -> None:
+        """Keep every POST waiting, unanswered, until :meth:`stop` (a receiver that hangs
+        while KyberCore stops)."""
+        self._holding = True
 
     def serve(self, path: str, content: bytes | str, content_type: str = "image/jpeg") -> None:
         """Answer GET ``path`` with ``content`` (:data:`HANG`: never answer)."""
@@ -108,6 +116,7 @@ class Receiver:
     async def stop(self) -> None:
         """Stop serving (connections are refused until :meth:`start`); requests kept."""
         self._released.set()
+        self._holding = False
         if self._server is not None:
             self._server.should_exit = True
         if self._task is not None:
@@ -121,6 +130,10 @@ class Receiver:
         headers = {k.lower(): v for k, v in request.headers.items()}
         if request.method == "GET":
             return await self._serve(path, headers)
+        if self._holding:
+            self.held += 1
+            await self._released.wait()
+            return Response("shutting down", status_code=503)
         status = 200
         if self._failures:
             status = self._failures.pop(0)

@@ -10,6 +10,7 @@ import base64
 import io
 import math
 from collections.abc import AsyncIterator, Callable
+from dataclasses import replace
 from pathlib import Path
 
 import httpx
@@ -26,6 +27,7 @@ from kybercore.registry.store import PrinterRegistry, write_printers
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import travel_gcode, wait_for
 from tests.notify.live_notify import (
+    FAST,
     RETRY,
     SECRET,
     add_webhook,
@@ -133,6 +135,69 @@ async def test_a_printer_lost_while_printing_is_told_once_and_an_idle_one_not_at
             await client_of(notify, busy).print_cancel()
     finally:
         idle.stop()
+
+
+@pytest.mark.timeout(300)
+async def test_a_room_of_twelve_lost_together_is_one_message_and_a_flap_is_not_told_again(
+    own_printer: PrinterStack,
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+    engine: AsyncEngine,
+    receiver: Receiver,
+) -> None:
+    # Twelve printers of Room B behind one Moonraker: stopping it is the room losing power.
+    room = [
+        PrinterConfig(
+            id=f"b{n:02}", name=f"B{n:02}", location="Room B", moonraker_url=own_printer.url
+        )
+        for n in range(1, 13)
+    ]
+    alerts = frozenset({"printer_offline", "storm_offline", "printer_recovered"})
+    # The room's sessions reconnect within ~1.5 s of Moonraker's return (refused connections
+    # are retried every 1-1.5 s): a window of 8 s folds their recoveries with 5x slack.
+    settings = replace(FAST, cooldown_s=3600.0, fold_window_s=8.0, storm_threshold=3)
+    async with running_notify(room, tmp_path, http, engine, settings) as notify:
+        await add_webhook(notify, receiver, events=alerts)
+        await wait_for(
+            lambda: all(notify.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
+            READY_WITHIN,
+            "the room online",
+        )
+        client = notify.fleet.sessions.get("b01").client
+        assert client is not None
+        await client.upload("notify-long.gcode", LONG)
+        await client.print_start("notify-long.gcode")
+
+        def printing() -> bool:
+            live = [notify.fleet.sessions.get(p.id).live for p in room]
+            return all(x.status.get("print_stats", {}).get("state") == "printing" for x in live)
+
+        await wait_for(printing, READY_WITHIN, "the room printing")
+        for flap in range(2):
+            await asyncio.to_thread(own_printer.stop_moonraker)
+            await wait_for(
+                lambda: all(notify.fleet.view(p.id)["connection"] != "online" for p in room),
+                TOLD_WITHIN,
+                "the room offline",
+            )
+            await settled(notify)
+            # One message for the room; the second loss, within the cooldown, none.
+            told = ["storm_offline"] if flap == 0 else ["storm_offline", "printer_recovered"]
+            assert kinds(receiver) == told
+            await asyncio.to_thread(own_printer.start_moonraker)
+            await wait_for(
+                lambda: all(notify.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
+                READY_WITHIN,
+                "the room back",
+            )
+            await settled(notify)
+            assert kinds(receiver) == ["storm_offline", "printer_recovered"]
+        storm, back = received(receiver)
+        assert (storm["printer"], storm["data"]["location"]) == (None, "Room B")
+        assert sorted(storm["data"]["printers"]) == [p.id for p in room]
+        assert storm["title"] == "Room B: 12 printers offline"
+        assert (back["printer"], back["data"]["count"]) == (None, 12)
+        await client.print_cancel()
 
 
 async def test_a_finished_print_is_told_started_and_completed_with_the_webcams_picture(

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import base64
 from collections.abc import AsyncIterator, Callable
+from datetime import UTC, datetime
 
 import httpx
 import pytest
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import open_database
-from kybercore.notify.outbox import Outbox
+from kybercore.notify.outbox import Outbox, backoff
 from kybercore.notify.records import Delivery
 from kybercore.notify.rules import ChannelRules
 from kybercore.notify.store import NotifyStore
@@ -139,6 +140,33 @@ async def test_events_left_undelivered_at_a_restart_are_delivered_after_it(
     assert event_ids(receiver.accepted, "a") == [events[0].id, events[3].id]
 
 
+async def test_a_send_cut_off_by_a_stop_is_handed_back_and_sent_after_the_restart(
+    store: NotifyStore, http: httpx.AsyncClient, receiver: Receiver
+) -> None:
+    hook = await add_webhook(store, receiver.url())
+    receiver.hold()
+    first = Outbox(store, http, **FAST, stop_grace=0.1)
+    await first.start()
+    event = fleet_event()
+    (delivery,) = await store.record(event, None, {hook.id: "deliver"})
+    first.wake()
+    await wait_for(lambda: receiver.held == 1, what="the send to hang")
+    await first.stop()
+    # Handed back unsent: due now, not after the claim's two minutes.
+    cut = await store.delivery(delivery)
+    assert (cut.status, cut.attempts) == ("pending", 0)
+    assert await store.next_due() <= datetime.now(UTC)
+    await receiver.stop()  # answers the hung request (503), then is back
+    await receiver.start()
+    second = Outbox(store, http, **FAST)
+    await second.start()
+    try:
+        await wait_for(all_delivered(store, 1), what="the delivery after the restart")
+    finally:
+        await second.stop()
+    assert event_ids(receiver.accepted) == [event.id]
+
+
 async def test_a_delivery_given_up_is_failed_and_no_longer_holds_its_printer_back(
     store: NotifyStore, http: httpx.AsyncClient, receiver: Receiver
 ) -> None:
@@ -165,6 +193,13 @@ async def test_a_delivery_given_up_is_failed_and_no_longer_holds_its_printer_bac
     # Held back until then: every try of the doomed one came before the later one's.
     order = event_ids(receiver.requests)
     assert order == [doomed.id] * failed.attempts + [later.id]
+
+
+def test_retries_back_off_exponentially_with_jitter_up_to_the_cap() -> None:
+    for attempts, ceiling in [(1, 2.0), (2, 4.0), (3, 8.0), (8, 256.0), (9, 300.0), (30, 300.0)]:
+        delays = [backoff(attempts, 2.0, 300.0) for _ in range(50)]
+        assert all(ceiling / 2 <= delay <= ceiling for delay in delays), (attempts, delays)
+        assert len(set(delays)) > 1  # jittered
 
 
 async def test_wait_outcome_answers_after_the_first_attempt(

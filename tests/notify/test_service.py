@@ -7,7 +7,7 @@ printer; what the printers' transitions send is tested in test_live.py.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -15,6 +15,7 @@ from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import text
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import default_database_url, open_database
@@ -30,8 +31,20 @@ from tests.jobs.conftest import new_job
 from tests.notify.live_notify import FAST, SECRET, add_webhook, kinds, received, running_notify
 from tests.notify.receiver import Receiver
 
+README = Path(__file__).parents[2] / "README.md"
 DELIVERED_WITHIN = 10.0
 """A delivery to a loopback receiver takes milliseconds; a retry 0.2 s: 10 s of slack."""
+
+
+def readme_verify() -> Callable[..., bool]:
+    """The signature check the README gives webhook receivers (its Python block after
+    "### The webhook"), compiled from the README itself."""
+    text = README.read_text()
+    code = text[text.index("### The webhook") :].split("```python\n", 1)[1].split("```", 1)[0]
+    namespace: dict[str, Any] = {}
+    exec(compile(code, str(README), "exec"), namespace)  # our own README's snippet
+    verify: Callable[..., bool] = namespace["verify"]
+    return verify
 
 
 def unreachable(*ids: str, location: str = "Lab") -> list[PrinterConfig]:
@@ -64,6 +77,12 @@ async def test_a_test_message_is_signed_and_answered_with_its_outcome(
             SECRET, request.headers[TIMESTAMP_HEADER.lower()], request.body,
             request.headers[SIGNATURE_HEADER.lower()],
         )  # fmt: skip
+        # The README's snippet agrees, and refuses a body changed in transit or a stale one.
+        readme = readme_verify()
+        assert readme(SECRET, request.headers, request.body)
+        assert not readme(SECRET, request.headers, request.body + b" ")
+        assert not readme("another-secret-of-the-same-length-0123", request.headers, request.body)
+        assert not readme(SECRET, request.headers, request.body, max_age=-1)
         body = request.json()
         assert (body["type"], body["id"], body["printer"]) == ("test", delivery.event_id, None)
         assert body["title"]
@@ -193,3 +212,27 @@ async def test_stopping_records_the_events_still_held_for_folding(
     # The window had an hour to go: the stop recorded it for the next start to send.
     [recorded] = await notify.store.deliveries(channel.id)
     assert (recorded.kind, recorded.status) == ("plate_waiting", "pending")
+
+
+async def test_a_database_failure_is_logged_and_the_service_goes_on(
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+    engine: AsyncEngine,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    async with running_notify(unreachable("p1", "p2"), tmp_path, http, engine) as notify:
+        async with engine.begin() as conn:  # the channels' table gone: every event fails
+            await conn.execute(text("DROP TABLE notify_channels"))
+        store = notify.queue.store
+        attempt = await store.reserve((await store.create_job(new_job(), "al")).id, "p1")
+        assert attempt is not None
+        await store.finish(attempt.id, "completed")
+        await store.create_job(new_job(), "al")
+
+        def failures() -> int:
+            return sum("could not be recorded" in r.getMessage() for r in caplog.records)
+
+        # Two events (the plate waiting, the job blocked), each failing on its own.
+        await wait_for(lambda: failures() >= 2, DELIVERED_WITHIN, "both failures logged")
+        ticks = notify.ticks
+        await wait_for(lambda: notify.ticks > ticks + 2, DELIVERED_WITHIN, "the ticks go on")

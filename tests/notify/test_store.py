@@ -11,7 +11,7 @@ import pytest
 from alembic import command
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import func, select, text
+from sqlalchemy import func, select, text, update
 from sqlalchemy.engine import Connection
 from sqlalchemy.ext.asyncio import AsyncEngine, create_async_engine
 
@@ -285,3 +285,25 @@ async def test_settings_are_the_defaults_until_saved_then_what_was_saved(
     again = NoiseSettings(plate_wait_s=60.0)
     await store.save_settings(again)
     assert await store.settings() == again
+
+
+async def test_an_event_this_kybercore_cannot_read_is_failed_not_left_blocking(
+    store: NotifyStore, database: AsyncEngine
+) -> None:
+    hook = await add_webhook(store, "http://127.0.0.1:9/h")
+    odd, fine = fleet_event(printer="a"), fleet_event(printer="a")
+    (first,) = await store.record(odd, None, {hook.id: "deliver"})
+    (second,) = await store.record(fine, None, {hook.id: "deliver"})
+    # As a newer KyberCore with an event kind this one does not know would write it.
+    future = {**odd.to_json(), "type": "spaghetti_detected"}
+    async with database.begin() as conn:
+        await conn.execute(
+            update(notify_events).where(notify_events.c.id == odd.id).values(payload=future)
+        )
+    assert await store.due(datetime.now(UTC)) == []
+    assert [x.id for x in await store.due(datetime.now(UTC))] == [second]
+    failed = await store.delivery(first)
+    assert failed.status == "failed"
+    assert failed.last_error.startswith("KyberCore cannot read this event")
+    # The log still lists it, under its kind.
+    assert [d.title for d in await store.deliveries()][1] == "print_failed"

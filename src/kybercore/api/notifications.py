@@ -231,9 +231,16 @@ async def _check_target(kind: ChannelKind, target: str) -> None:
     if kind == "webhook":
         problem = webhook_url_problem(target)
     else:  # Apprise loads its plugins on first use: off the event loop
-        problem = await asyncio.to_thread(check_apprise_url, target)
+        problem = await asyncio.to_thread(_apprise_problem, target)
     if problem is not None:
         raise _field_error("target", problem)
+
+
+def _apprise_problem(target: str) -> str | None:
+    try:
+        return check_apprise_url(target)
+    except Exception:  # a third-party parser: whatever it chokes on is not a usable URL
+        return "Apprise cannot read this URL; check it against its service's documentation"
 
 
 def _field_error(field: str, message: str) -> RequestValidationError:

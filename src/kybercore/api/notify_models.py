@@ -8,7 +8,6 @@ write instead (a 422 in the usual envelope). The pure rules they turn into are
 
 from __future__ import annotations
 
-import re
 from dataclasses import asdict
 from typing import Annotated, Final, Literal
 from urllib.parse import urlsplit
@@ -16,11 +15,10 @@ from urllib.parse import urlsplit
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from kybercore.notify.models import DEFAULT_EVENTS, EVENT_KINDS, EventKind, NoiseSettings, Severity
-from kybercore.notify.rules import ChannelRules, QuietHours
+from kybercore.notify.rules import ChannelRules, QuietHours, clock
 
 MAX_TARGET: Final = 2000
 MAX_LIST: Final = 200
-_CLOCK: Final = re.compile(r"([01]\d|2[0-3]):[0-5]\d")
 WEEK: Final = 7 * 86400.0
 
 Name = Annotated[str, Field(min_length=1, max_length=100)]
@@ -67,11 +65,7 @@ class QuietHoursIn(BaseModel):
     @field_validator("start", "end")
     @classmethod
     def _clock(cls, value: str) -> str:
-        if not _CLOCK.fullmatch(value):
-            raise ValueError(
-                f"'{value[:20]}' is not a time of day: write it as HH:MM on a 24-hour "
-                "clock, e.g. 07:30 or 22:00"
-            )
+        clock(value)  # ValueError: "'7pm' is not a time of day as HH:MM, e.g. 22:30"
         return value
 
 

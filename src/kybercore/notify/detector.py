@@ -124,9 +124,8 @@ class Detector:
         track = self._tracks.get(printer.id)
         online = obs.connection == "online"
         if track is None:
+            # Nothing known yet: every value below is learned, none is a transition.
             self._tracks[printer.id] = track = _Track(online=online)
-            self._learn(track, obs)
-            return []
         events: list[FleetEvent] = []
 
         def emit(kind: EventKind, **params: Any) -> None:
@@ -160,15 +159,6 @@ class Detector:
                 printer = self._refs[printer_id]
                 events.append(FleetEvent("printer_offline", at, printer, {"minutes": minutes}))
         return events
-
-    def _learn(self, track: _Track, obs: Observation) -> None:
-        """Take a first observation as the baseline."""
-        if obs.connection != "online":
-            return
-        if obs.klippy_state in _KLIPPY_KNOWN:
-            track.klippy = obs.klippy_state
-        if obs.klippy_state == "ready" and obs.print_state is not None:
-            track.print_state, track.filename = obs.print_state, obs.filename
 
     def _lost(self, track: _Track, emit: Emit, now: float) -> None:
         # A Klippy already down was told: losing the printer then (a power cycle to

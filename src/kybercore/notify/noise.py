@@ -68,7 +68,7 @@ class NoiseFilter:
     def __init__(self, settings: NoiseSettings) -> None:
         self._settings = settings
         self._out: dict[tuple[str, EventKind], float] = {}
-        """(subject, kind) -> when it last went out (or will, if held)."""
+        """(subject, kind) -> when it last went out (while held: when it is due)."""
         self._open: dict[tuple[str, str], bool] = {}
         """(printer id, alert group) -> whether the alert went out folded into a storm."""
         self._held: dict[_Group, _Window] = {}
@@ -83,11 +83,12 @@ class NoiseFilter:
         """Take in ``event`` at monotonic ``now``; return what goes out now."""
         if event.kind == "test":
             return [event]
+        # What was due before comes first; with no fold window, what this holds is due too.
+        out = self.release(now)
         if event.kind == "printer_recovered":
-            out = self._recovered(event, now)
+            out += self._recovered(event, now)
         else:
-            out = self._alert(event, now)
-        # With no fold window, what was just held is due at once.
+            out += self._alert(event, now)
         return [*out, *self.release(now)]
 
     def release(self, now: float) -> list[FleetEvent]:
@@ -148,6 +149,8 @@ class NoiseFilter:
     def _fold(self, group: _Group, window: _Window, now: float) -> list[FleetEvent]:
         kind, location = group
         events = window.events
+        for event in events:  # out now, maybe later than the deadline it was counted from
+            self._out[(subject(event), event.kind)] = now
         if kind == "printer_offline":
             storm = len(events) > self._settings.storm_threshold
             self._opened(events, folded=storm)
@@ -161,9 +164,10 @@ class NoiseFilter:
             return events
         if kind == "printer_recovered":
             return [_folded(kind, events, location=location, what="connection")]
+        # Plates fold fleet-wide; when they all stand in one place, say where.
         locations = {event.printer.location if event.printer else None for event in events}
-        shared = {"location": locations.pop()} if len(locations) == 1 else {}
-        return [_folded(kind, events, **shared)]
+        place = locations.pop() if len(locations) == 1 else None
+        return [_folded(kind, events, **({"location": place} if place else {}))]
 
 
 def _folded(kind: EventKind, events: list[FleetEvent], **params: Any) -> FleetEvent:

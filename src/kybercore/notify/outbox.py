@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 MAX_SENDING: Final = 20
 """Deliveries sent at once (each to a different channel or printer)."""
 STOP_GRACE: Final = 5.0
-"""Seconds :meth:`Outbox.stop` lets sends in flight finish before cutting them off."""
+"""Seconds :meth:`Outbox.stop` lets sends in flight finish, by default, before cutting
+them off."""
 _IDLE_CHECK: Final = 60.0
 # Without anything pending the loop still looks every minute: another process on the same
 # database may have recorded events (this one's record() wakes it at once).
@@ -48,12 +49,14 @@ class Outbox:
         first_retry: float = 2.0,
         max_retry: float = 300.0,
         give_up_after: float = 48 * 3600.0,
+        stop_grace: float = STOP_GRACE,
     ) -> None:
         self._store = store
         self._http = http
         self.first_retry = first_retry
         self.max_retry = max_retry
         self.give_up_after = give_up_after
+        self.stop_grace = stop_grace
         self._wake = asyncio.Event()
         self._runner: asyncio.Task[None] | None = None
         self._stopping = False
@@ -67,7 +70,7 @@ class Outbox:
             self._runner = asyncio.create_task(self._run(), name="notify-outbox")
 
     async def stop(self) -> None:
-        """Stop: sends in flight get :data:`STOP_GRACE` seconds to finish; those cut off are
+        """Stop: sends in flight get ``stop_grace`` seconds to finish; those cut off are
         handed back to the database, due now, for the next start."""
         runner, self._runner = self._runner, None
         if runner is not None:
@@ -75,10 +78,10 @@ class Outbox:
             # leave deliveries claimed by no one until their lease ends.
             self._stopping = True
             self._wake.set()
-            await asyncio.wait({runner}, timeout=STOP_GRACE)
+            await asyncio.wait({runner}, timeout=self.stop_grace)
             await cancel_and_wait(runner)
         if self._sending:
-            await asyncio.wait(list(self._sending.values()), timeout=STOP_GRACE)
+            await asyncio.wait(list(self._sending.values()), timeout=self.stop_grace)
         cut = list(self._sending)
         for task in list(self._sending.values()):
             await cancel_and_wait(task)
@@ -102,12 +105,6 @@ class Outbox:
         finally:
             self._outcomes.pop(delivery_id, None)
         return await self._store.delivery(delivery_id)
-
-    def retry_delay(self, attempts: int) -> float:
-        """Seconds before the next try after ``attempts`` failed ones (jittered: receivers
-        that were down together are not all hit again at the same instant)."""
-        ceiling = min(self.max_retry, self.first_retry * 2 ** max(attempts - 1, 0))
-        return float(ceiling / 2 + random.uniform(0, ceiling / 2))
 
     # -- the loop ----------------------------------------------------------------------
 
@@ -181,12 +178,21 @@ class Outbox:
             await self._store.mark_failed(due.id, result.error, result.code)
             return
         # The last try falls on the deadline, not after it.
-        retry_at = min(now + timedelta(seconds=self.retry_delay(attempts)), deadline)
+        delay = backoff(attempts, self.first_retry, self.max_retry)
+        retry_at = min(now + timedelta(seconds=delay), deadline)
         log.info(
             "Notification delivery %d failed (attempt %d: %s); next try at %s",
             due.id, attempts, result.error, retry_at.isoformat(timespec="seconds"),
         )  # fmt: skip
         await self._store.mark_retry(due.id, result.error, result.code, retry_at)
+
+
+def backoff(attempts: int, first: float, cap: float) -> float:
+    """Seconds before the next try after ``attempts`` failed ones: ``first * 2**(attempts-1)``
+    capped at ``cap``, jittered into its upper half (receivers that were down together are
+    not all hit again at the same instant)."""
+    ceiling = min(cap, first * 2 ** max(attempts - 1, 0))
+    return float(ceiling / 2 + random.uniform(0, ceiling / 2))
 
 
 def _now() -> datetime:

@@ -158,8 +158,11 @@ def to_channel(row: RowMapping) -> Channel:
 def to_delivery(row: RowMapping) -> Delivery:
     """A ``notify_deliveries`` row joined with its event (``kind``, ``printer_id``,
     ``payload``) and channel (``channel_name``, ``rules``), as a :class:`Delivery`."""
-    language = ChannelRules.from_json(row["rules"]).language
-    title, _body = render(FleetEvent.from_json(row["payload"]), language)
+    try:
+        language = ChannelRules.from_json(row["rules"]).language
+        title, _body = render(FleetEvent.from_json(row["payload"]), language)
+    except (KeyError, TypeError, ValueError):
+        title = str(row["kind"])  # written by a newer KyberCore: the log still lists it
     return Delivery(
         id=row["id"],
         event_id=row["event_id"],

@@ -33,7 +33,7 @@ import httpx
 import orjson
 
 from kybercore import __version__
-from kybercore.notify.models import FleetEvent
+from kybercore.notify.models import FleetEvent, Severity
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ APPRISE_TIMEOUT: Final = 30.0
 """Seconds one Apprise notification may take, whatever the service (e-mail is slow)."""
 _ERROR_TEXT: Final = 300
 # Apprise's message type sets the colour or icon on most services.
-_APPRISE_TYPES: Final = {
+_APPRISE_TYPES: Final[dict[Severity, apprise.NotifyType]] = {
     "info": apprise.NotifyType.INFO,
     "warning": apprise.NotifyType.WARNING,
     "critical": apprise.NotifyType.FAILURE,
@@ -131,7 +131,7 @@ async def send_webhook(
 
 
 async def send_apprise(
-    url: str, title: str, body: str, snapshot: bytes | None, *, severity: str = "info"
+    url: str, title: str, body: str, snapshot: bytes | None, *, severity: Severity = "info"
 ) -> SendResult:
     """Notify one Apprise URL (ntfy, Telegram, Discord, Slack, e-mail…); the snapshot is
     attached as a ``.jpg``. Apprise is blocking: it runs in a worker thread."""
@@ -148,11 +148,13 @@ def check_apprise_url(url: str) -> str | None:
     )
 
 
-def _notify(url: str, title: str, body: str, snapshot: bytes | None, severity: str) -> SendResult:
+def _notify(
+    url: str, title: str, body: str, snapshot: bytes | None, severity: Severity
+) -> SendResult:
     sender = _apprise()
     if not sender.add(url):
         return SendResult(False, None, check_apprise_url(url) or "")
-    kind = _APPRISE_TYPES.get(severity, apprise.NotifyType.INFO)
+    kind = _APPRISE_TYPES[severity]
     with tempfile.TemporaryDirectory(prefix="kybercore-notify-") as folder:
         attach = None
         if snapshot is not None:

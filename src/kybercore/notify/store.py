@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from datetime import UTC, datetime, timedelta
 from typing import Any, Final
 
-from sqlalchemy import Select, and_, exists, func, select, update
+from sqlalchemy import Select, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
@@ -35,9 +35,9 @@ from kybercore.notify.records import (
     settings_from,
     to_channel,
     to_delivery,
-    to_due,
 )
 from kybercore.notify.rules import ChannelRules, Route
+from kybercore.notify.store_outbox import claim, next_due, release, settle
 from kybercore.notify.tables import (
     notify_channels,
     notify_deliveries,
@@ -279,58 +279,12 @@ class NotifyStore:
         """Claim and return the deliveries to send now: pending, due by ``now``, and each the
         oldest pending one of its (channel, printer). Claimed rows are not due again until
         they are marked, or their lease ends."""
-
-        async def claim(conn: AsyncConnection) -> list[DueDelivery]:
-            query = (
-                select(
-                    d.id,
-                    d.attempts,
-                    d.created_at,
-                    d.channel_id,
-                    c.kind,
-                    c.target,
-                    c.secret,
-                    c.rules,
-                    e.payload,
-                    e.snapshot.is_not(None).label("has_snapshot"),
-                )
-                .join(notify_channels, c.id == d.channel_id)
-                .join(notify_events, e.id == d.event_id)
-                .where(d.status == "pending", d.next_at <= now, _is_head())
-                .order_by(d.id)
-                .limit(limit)
-            )
-            rows = list((await conn.execute(query)).mappings())
-            if not rows:
-                return []
-            # Only rows still due are taken: another outbox may have claimed one meanwhile
-            # (PostgreSQL re-checks the condition after waiting for its row lock).
-            claimed = set(
-                await conn.scalars(
-                    update(notify_deliveries)
-                    .where(
-                        d.id.in_([row["id"] for row in rows]),
-                        d.status == "pending",
-                        d.next_at <= now,
-                    )
-                    .values(next_at=now + self._lease)
-                    .returning(d.id)
-                )
-            )
-            return [to_due(row) for row in rows if row["id"] in claimed]
-
-        return await transaction(self._engine, claim)
+        until = now + self._lease
+        return await transaction(self._engine, lambda conn: claim(conn, now, limit, until))
 
     async def next_due(self) -> datetime | None:
         """When the next delivery falls due (it may be past), or None when none is pending."""
-
-        async def read(conn: AsyncConnection) -> datetime | None:
-            when: datetime | None = await conn.scalar(
-                select(func.min(d.next_at)).where(d.status == "pending", _is_head())
-            )
-            return when
-
-        return await transaction(self._engine, read, write=False)
+        return await transaction(self._engine, next_due, write=False)
 
     async def snapshot(self, event_id: str) -> bytes | None:
         """The webcam snapshot kept with an event (None once every delivery is settled)."""
@@ -359,40 +313,12 @@ class NotifyStore:
 
     async def release(self, delivery_ids: list[int]) -> None:
         """Hand claimed deliveries back unsent, due now (an outbox stopping mid-send)."""
-        if not delivery_ids:
-            return
-
-        async def write(conn: AsyncConnection) -> None:
-            await conn.execute(
-                update(notify_deliveries)
-                .where(d.id.in_(delivery_ids), d.status == "pending")
-                .values(next_at=_now())
-            )
-
-        await transaction(self._engine, write)
+        if delivery_ids:
+            now = _now()
+            await transaction(self._engine, lambda conn: release(conn, delivery_ids, now))
 
     async def _settle(self, delivery_id: int, **values: Any) -> None:
-        if values["status"] != "pending":
-            values["next_at"] = None
-
-        async def write(conn: AsyncConnection) -> None:
-            event_id = await conn.scalar(
-                update(notify_deliveries)
-                .where(d.id == delivery_id, d.status == "pending")
-                .values(attempts=d.attempts + 1, **values)
-                .returning(d.event_id)
-            )
-            if event_id is None or values["status"] == "pending":
-                return  # gone with its channel, or already settled
-            # The snapshot goes once no delivery may send it any more.
-            still = exists().where(d.event_id == event_id, d.status == "pending")
-            await conn.execute(
-                update(notify_events)
-                .where(e.id == event_id, e.snapshot.is_not(None), ~still)
-                .values(snapshot=None)
-            )
-
-        await transaction(self._engine, write)
+        await transaction(self._engine, lambda conn: settle(conn, delivery_id, **values))
 
 
 async def _channel(conn: AsyncConnection, channel_id: int) -> Channel:
@@ -401,19 +327,6 @@ async def _channel(conn: AsyncConnection, channel_id: int) -> Channel:
     if found is None:
         raise ChannelNotFound(channel_id)
     return to_channel(found)
-
-
-def _is_head() -> Any:
-    """The delivery is the oldest pending one of its (channel, printer)."""
-    older = notify_deliveries.alias("older")
-    return ~exists().where(
-        and_(
-            older.c.status == "pending",
-            older.c.channel_id == d.channel_id,
-            older.c.printer_key == d.printer_key,
-            older.c.id < d.id,
-        )
-    )
 
 
 def _delivery_query() -> Select[Any]:

@@ -126,9 +126,9 @@ _TEXTS: Final[dict[tuple[str, str], tuple[str, str, str, str]]] = {
     ),
     ("plate_waiting", ""): (
         "{name}: plate waiting to be cleared",
-        "The plate of {name} has been waiting {minutes}. Clear it to let the queue continue.",
+        "Clear the plate of {name} to let the queue continue; it has been waiting {minutes}.",
         "{name}: placa por despejar",
-        "La placa de {name} lleva {minutes} esperando. Despéjela para que la cola continúe.",
+        "Despeje la placa de {name} para que la cola continúe; lleva {minutes} esperando.",
     ),
     ("plate_waiting", "fold"): (
         "{plates} {are} waiting to be cleared",
