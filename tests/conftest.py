@@ -16,6 +16,7 @@ from kybercore.registry.store import write_printers
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
 from tests.helpers import KyberCoreServer
+from tests.notify.receiver import Receiver
 
 # Hypothesis' per-example deadline and its "too slow" health check measure speed: on a busy
 # 2-core machine they fail correct tests. Speed is measured in bench/, never asserted here.
@@ -111,3 +112,12 @@ def kybercore_server(
     server.wait_online(len(printers))
     yield server
     server.stop()
+
+
+@pytest.fixture
+async def receiver() -> AsyncIterator[Receiver]:
+    """A loopback webhook receiver (tests/notify/receiver.py), stopped after the test."""
+    started = Receiver()
+    await started.start()
+    yield started
+    await started.stop()

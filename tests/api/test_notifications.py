@@ -56,14 +56,6 @@ async def api(tmp_path: Path) -> AsyncIterator[Api]:
         yield Api(app, client, tokens)
 
 
-@pytest.fixture
-async def receiver() -> AsyncIterator[Receiver]:
-    """A loopback webhook receiver."""
-    started = Receiver()
-    await started.start()
-    yield started
-    await started.stop()
-
 
 def webhook(receiver: Receiver, **fields: Any) -> dict[str, Any]:
     return {"name": "ops hook", "kind": "webhook", "target": receiver.url(), **fields}

@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -45,13 +45,6 @@ def server(tmp_path: Path) -> Iterator[KyberCoreServer]:
     yield started
     started.stop()
 
-
-@pytest.fixture
-async def receiver() -> AsyncIterator[Receiver]:
-    started = Receiver()
-    await started.start()
-    yield started
-    await started.stop()
 
 
 async def test_add_list_test_and_read_the_deliveries_of_a_webhook(

@@ -70,7 +70,8 @@ async def test_a_watcher_reload_older_than_an_api_write_does_not_revert_it(
     await asyncio.to_thread(registry.read.wait, 10)
     registry.hold = False
     # Meanwhile the API adds a printer: on disk and in the fleet.
-    await service.add_printer(PrinterCreate(id="b", name="B", moonraker_url=url))
+    other = f"http://127.0.0.1:{free_port()}"  # a Moonraker of its own; it need not answer
+    await service.add_printer(PrinterCreate(id="b", name="B", moonraker_url=other))
     assert [p.id for p in registry.printers] == ["a", "b"]
     # Now the watcher goes on with what it read before that write.
     registry.go_on.set()

@@ -50,8 +50,17 @@ async def standin() -> AsyncIterator[FaultyMoonraker]:
     await standin.stop()
 
 
+@pytest.fixture
+async def second_standin() -> AsyncIterator[FaultyMoonraker]:
+    """Another such stand-in: one Moonraker drives one printer."""
+    standin = FaultyMoonraker("healthy", interval=0.25)
+    await standin.start()
+    yield standin
+    await standin.stop()
+
+
 async def test_a_failed_limits_read_refuses_what_needs_them_and_is_retried(
-    fleet: FleetService, standin: FaultyMoonraker
+    fleet: FleetService, standin: FaultyMoonraker, second_standin: FaultyMoonraker
 ) -> None:
     await fleet.add_printer(PrinterCreate(id="p", name="P", moonraker_url=standin.url))
     given = Capabilities(
@@ -61,7 +70,7 @@ async def test_a_failed_limits_read_refuses_what_needs_them_and_is_retried(
         max_bed_temp=100,
     )
     await fleet.add_printer(
-        PrinterCreate(id="q", name="Q", moonraker_url=standin.url, capabilities=given)
+        PrinterCreate(id="q", name="Q", moonraker_url=second_standin.url, capabilities=given)
     )
     await wait_for(lambda: fleet.view("p")["limits"] == "unknown", what="limits unknown")
     await wait_for(lambda: fleet.view("q")["klippy_state"] == "ready", what="q ready")

@@ -110,8 +110,10 @@ async def test_upload_and_print_at_once(client: MoonrakerClient) -> None:
     await client.delete_file(name)
 
 
-async def test_webcams_list_is_empty_on_a_fresh_printer(client: MoonrakerClient) -> None:
-    assert await client.webcams_list() == []
+async def test_webcams_list_names_the_virtual_printers_webcam(client: MoonrakerClient) -> None:
+    (webcam,) = await client.webcams_list()
+    assert webcam["name"] == "kybercam"
+    assert webcam["snapshot_url"].startswith("http://127.0.0.1:")
 
 
 async def test_emergency_stop_firmware_restart_and_restart(

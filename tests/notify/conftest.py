@@ -3,7 +3,6 @@ tests/jobs), a store on it, a loopback receiver, and events and channels to reco
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from typing import Any
 
@@ -15,7 +14,6 @@ from kybercore.notify.records import Channel
 from kybercore.notify.rules import ChannelRules
 from kybercore.notify.store import NotifyStore
 from tests.jobs.conftest import database, database_url, postgres_server
-from tests.notify.receiver import Receiver
 
 __all__ = ["database", "database_url", "postgres_server"]
 
@@ -46,14 +44,6 @@ def store(database: AsyncEngine) -> NotifyStore:
     """The notification store on the test's database."""
     return NotifyStore(database)
 
-
-@pytest.fixture
-async def receiver() -> AsyncIterator[Receiver]:
-    """A started loopback receiver, stopped after the test."""
-    started = Receiver()
-    await started.start()
-    yield started
-    await started.stop()
 
 
 async def add_webhook(

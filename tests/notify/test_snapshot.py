@@ -4,6 +4,7 @@ real virtual printer whose moonraker.conf lists webcams served by a loopback ser
 from __future__ import annotations
 
 import io
+import re
 import time
 from collections.abc import AsyncIterator, Callable, Iterator
 
@@ -95,12 +96,14 @@ async def webcam() -> AsyncIterator[Receiver]:
 def webcam_printer(
     start_stack: Callable[..., PrinterStack], webcam: Receiver
 ) -> Iterator[PrinterStack]:
-    """A virtual printer with two webcams in its moonraker.conf (the simulator writes
-    none: Moonraker is restarted on the config with them added)."""
+    """A virtual printer with two webcams of the test's in its moonraker.conf instead of
+    the simulator's own: Moonraker is restarted on that config."""
     stack = start_stack("webcam", wait=False)
     stack.stop_moonraker()
-    with (stack.data_dir / "config" / "moonraker.conf").open("a") as conf:
-        conf.write(WEBCAMS.format(port=webcam.port))
+    # These two instead of the simulator's own webcam: the test serves their pictures.
+    conf = stack.data_dir / "config" / "moonraker.conf"
+    own = re.sub(r"\[webcam kybercam\][^\[]*", "", conf.read_text())
+    conf.write_text(own + WEBCAMS.format(port=webcam.port))
     stack.start_moonraker()
     stack.wait_ready()
     yield stack
