@@ -27,8 +27,11 @@ async def test_a_heating_printer_draws_its_curve(api: httpx.AsyncClient) -> None
     try:
 
         async def heated() -> bool:
+            # Heating to this target, past 50 °C: the hotend may still be warm from an
+            # earlier test, so the temperature alone proves nothing.
             series = (await api.get(path)).json()["series"]["extruder"]
-            return max(t for t in series["temperature"] if t is not None) > 50
+            pairs = zip(series["temperature"], series["target"], strict=True)
+            return any(temp is not None and temp > 50 and aim == 60 for temp, aim in pairs)
 
         await wait_for(heated, timeout=60, what="the extruder's curve to pass 50 °C")
     finally:
