@@ -14,7 +14,7 @@ from typing import Any
 
 import httpx
 import pytest
-from playwright.sync_api import Page
+from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
 from tests.web.support import ARTIFACTS, FLEET, open_fleet, wait_until
@@ -123,6 +123,8 @@ def test_a_print_s_tile_shows_no_eta_while_heating_then_the_finish_clock(
         reading = english[-1]
         if not finish_checked and reading.done.startswith("done at"):
             _check_the_finish_clock(reading.done, api)
+            # The header names the print that ends first: the only one running.
+            expect(en.locator(".next-finish")).to_contain_text("Next: Printer B, done at")
             en.screenshot(path=str(ARTIFACTS / "progress-tile-done-at.png"))
             finish_checked = True
         return reading.pill == "Complete"

@@ -77,11 +77,9 @@ function etaText(job) {
   return typeof job.eta_seconds === "number" ? t("job.left", { time: fmt.duration(job.eta_seconds) }) : "—";
 }
 
-/** "done at 15:42" (the browser's clock: eta_at is the server's), or "". */
+/** "done at 15:42" for a busy job, or "". */
 function doneText(job) {
-  if (!busy(job) || typeof job.eta_at !== "number") return "";
-  const { day, time } = fmt.finish(job.eta_at - (serverNow() - Date.now() / 1000));
-  return day ? t("job.done_on", { day, time }) : t("job.done_at", { time });
+  return busy(job) ? fmt.doneText(job, serverNow()) : "";
 }
 
 /** The time left (else `otherwise`), with a hint while it is unknown. */

@@ -89,6 +89,16 @@ export function finish(unix, now = Date.now() / 1000) {
   return { day: new Intl.DateTimeFormat(getLang(), options).format(unix * 1000), time };
 }
 
+/**
+ * "done at 15:42" / "termina a las 15:42" for a job with an `eta_at`, or "". `eta_at` is
+ * the server's clock: `serverNowSeconds` (the server's now) moves it onto this browser's.
+ */
+export function doneText(job, serverNowSeconds) {
+  if (typeof job?.eta_at !== "number") return "";
+  const { day, time } = finish(job.eta_at - (serverNowSeconds - Date.now() / 1000));
+  return day ? t("job.done_on", { day, time }) : t("job.done_at", { time });
+}
+
 /** The part after the last "/", for long file paths. */
 export function baseName(path) {
   return (path || "").split("/").pop();

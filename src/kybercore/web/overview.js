@@ -2,6 +2,7 @@
 // place and batched into one animation frame. Filters, search, sort and the selection.
 import { Row, Tile } from "./cards.js";
 import { h, setHidden, setText } from "./dom.js";
+import * as fmt from "./format.js";
 import { t } from "./i18n.js";
 import { onQueueChange } from "./queue_data.js";
 import { AWAITING, GROUPS, comparator, facets, gates, matches, orderKey, printers, serverNow, statusOf, subscribe } from "./store.js";
@@ -211,7 +212,9 @@ function updateCounts() {
   // Plates to clear, at a glance: a printer in it is also counted by its status.
   counts[AWAITING] = [...gates.entries()].filter(([id, gate]) => gate.state === AWAITING && printers.has(id)).length;
   const shown = [...GROUPS, AWAITING];
-  const key = `${shown.map((g) => counts[g]).join(",")}|${view.state}|${t("group.printing")}`;
+  const next = nextToFinish();
+  const nextKey = next ? `${next.name}|${Math.round(next.job.eta_at / 60)}` : "";
+  const key = `${shown.map((g) => counts[g]).join(",")}|${view.state}|${t("group.printing")}|${nextKey}`;
   if (key === countsKey) return;
   countsKey = key;
   els.counts.replaceChildren(
@@ -224,7 +227,18 @@ function updateCounts() {
         h("span", { text: t(`group.${group}`, { n: counts[group] }) }),
       ),
     ),
+    next ? h("span", { class: "next-finish", text: t("summary.next", { name: next.name, when: fmt.doneText(next.job, serverNow()) }) }) : null,
   );
+}
+
+/** The printing printer whose print ends first (by its clock time), or null. */
+function nextToFinish() {
+  let next = null;
+  for (const p of printers.values()) {
+    if (p.job?.state !== "printing" || typeof p.job.eta_at !== "number") continue;
+    if (!next || p.job.eta_at < next.job.eta_at) next = p;
+  }
+  return next;
 }
 
 function refreshStale() {

@@ -424,4 +424,6 @@ export const en = {
   "job.done_at": "done at {time}",
   "job.done_on": "done {day} at {time}",
   "job.eta_pending": "Time left: known once the printer starts extruding",
+  // The header's summary: the printer whose print ends first.
+  "summary.next": "Next: {name}, {when}",
 };

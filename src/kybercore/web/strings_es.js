@@ -424,4 +424,6 @@ export const es = {
   "job.done_at": "termina a las {time}",
   "job.done_on": "termina el {day} a las {time}",
   "job.eta_pending": "Tiempo restante: se sabrá cuando la impresora empiece a extruir",
+  // The header's summary: the printer whose print ends first.
+  "summary.next": "Siguiente: {name}, {when}",
 };
