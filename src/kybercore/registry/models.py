@@ -84,6 +84,15 @@ def _check_url(url: str) -> str:
             "the URL has no host, e.g. http://192.168.1.50:7125",
             "a la URL le falta el host, p. ej. http://192.168.1.50:7125",
         )
+    # Brackets belong around an IPv6 address only ("http://[::1]:7125"); urlsplit lets
+    # "]a[::1" through as a host.
+    if ("[" in parts.netloc or "]" in parts.netloc) and not re.fullmatch(
+        r"\[[0-9A-Fa-f:.]+\](:[0-9]*)?", parts.netloc
+    ):
+        raise _invalid(
+            "not a valid URL (brackets only around an IPv6 address)",
+            "la URL no es válida (los corchetes solo rodean una dirección IPv6)",
+        )
     if parts.query or parts.fragment or url.endswith(("?", "#")):
         raise _invalid(
             "the URL must not have a query string or fragment",
@@ -91,7 +100,7 @@ def _check_url(url: str) -> str:
         )
     # Moonraker answers at the root of its host and port (/server/info, /websocket): a
     # path is a pasted page address ("/server/info", Mainsail's "/#/"), never a prefix.
-    if parts.path.strip("/"):
+    if parts.path not in ("", "/"):
         raise _invalid(
             f"the URL must be Moonraker's address only, without a path: remove "
             f"'{parts.path}', e.g. http://192.168.1.50:7125",
