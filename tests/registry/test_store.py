@@ -26,7 +26,12 @@ from kybercore.registry.models import (
     PrinterUpdate,
     slugify,
 )
-from kybercore.registry.store import PrinterRegistry, default_printers_path, read_printers
+from kybercore.registry.store import (
+    PrinterRegistry,
+    default_printers_path,
+    read_printers,
+    write_printers,
+)
 from tests.helpers import wait_for
 
 SECRET = "s3cr3t-moonraker-key-0123456789"
@@ -652,3 +657,22 @@ def test_one_moonraker_is_one_printer(registry: PrinterRegistry) -> None:
     registry.add(new("D", moonraker_url="http://10.0.0.5:7126"))
     # Editing a printer without moving it is not a conflict with itself.
     registry.update(first.id, PrinterUpdate(name="A2", moonraker_url="http://10.0.0.5:7125/"))
+
+
+def test_a_hand_written_file_sharing_a_moonraker_stays_editable(path: Path) -> None:
+    """printers.json written by hand may list one Moonraker twice: it loads, and its printers
+    can still be edited; only moving a printer onto a taken Moonraker is refused."""
+    shared = "http://10.0.0.7:7125"
+    write_printers(
+        path,
+        [
+            PrinterConfig(id="a", name="A", moonraker_url=shared),
+            PrinterConfig(id="b", name="B", moonraker_url=shared),
+            PrinterConfig(id="c", name="C", moonraker_url="http://10.0.0.8:7125"),
+        ],
+    )
+    registry = PrinterRegistry(path)
+    registry.reload()
+    assert registry.update("b", PrinterUpdate(location="Room 2")).location == "Room 2"
+    with pytest.raises(InvalidInput, match="already uses"):
+        registry.update("c", PrinterUpdate(moonraker_url=shared))

@@ -241,7 +241,9 @@ class PrinterRegistry:
                 and server_of(current.moonraker_url) != server_of(updated.moonraker_url)
             ):
                 raise _key_needed(updated.moonraker_url)
-            _refuse_same_server(updated, printers)
+            # Only a move is judged: a hand-written file sharing a server stays editable.
+            if server_of(current.moonraker_url) != server_of(updated.moonraker_url):
+                _refuse_same_server(updated, printers)
             printers[index] = updated
             return updated
 
