@@ -92,10 +92,10 @@ def test_good_slug_accepted(good: str) -> None:
     [
         ("ftp://h:7125", "http:// or https://"),
         ("ws://h:7125", "http:// or https://"),
-        ("mailto:h", "not a valid URL"),
+        ("mailto:h", "http:// or https://"),
         ("http://h:7125/server/info", "without a path"),
         ("http://proxy/printers/one/", "without a path"),
-        ("h:7125/#/", "fragment"),
+        ("h:7125/#/", "http:// or https://"),  # only a bare host[:port] is completed
         ("//h:7125", "http:// or https://"),
         ("http://user:pw@h:7125", "credentials"),
         ("http://user@h", "credentials"),

@@ -110,10 +110,14 @@ def _check_url(url: str) -> str:
     return f"{scheme}://{parts.netloc.lower()}"
 
 
+# What people type for a printer: a host or address and maybe a port, nothing else.
+_HOST_AND_PORT = re.compile(r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]*)(:[0-9]+)?/?")
+
+
 def _complete_url(value: object) -> object:
     # "192.168.1.50:7125" or "printer.local" is what people type: Moonraker speaks plain
-    # HTTP on a farm's network unless told otherwise.
-    if isinstance(value, str) and value and "://" not in value and not value.startswith("/"):
+    # HTTP on a farm's network unless told otherwise. Anything else is judged as given.
+    if isinstance(value, str) and _HOST_AND_PORT.fullmatch(value):
         return "http://" + value
     return value
 
