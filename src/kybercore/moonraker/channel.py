@@ -80,6 +80,8 @@ class Channel:
                 request.cancel()
                 with contextlib.suppress(asyncio.CancelledError, httpx.HTTPError):
                     await request
+            elif not request.cancelled():
+                request.exception()  # retrieved, as in rpc()
         if response.is_success:
             return response
         raise http_error(response, path, self._name)
@@ -102,6 +104,10 @@ class Channel:
                 call.cancel()
                 with contextlib.suppress(asyncio.CancelledError, PrinterError):
                     await call
+            elif not call.cancelled():
+                # Done while this coroutine was being cancelled: its outcome is retrieved
+                # here, or asyncio logs "Task exception was never retrieved" at collection.
+                call.exception()
 
     async def _wait_while_alive(
         self, request: asyncio.Future[httpx.Response], method: str, path: str
