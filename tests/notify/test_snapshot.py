@@ -12,13 +12,9 @@ import httpx
 import pytest
 from PIL import Image
 
+from kybercore.fleet.webcams import MAX_SNAPSHOT, camera_candidates
 from kybercore.moonraker.client import MoonrakerClient
-from kybercore.notify.snapshot import (
-    MAX_SNAPSHOT,
-    resolve_snapshot_url,
-    snapshot_candidates,
-    take_snapshot,
-)
+from kybercore.notify.snapshot import take_snapshot
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.notify.receiver import HANG, Receiver
 
@@ -66,21 +62,21 @@ def image(kind: str = "JPEG") -> bytes:
     ],
 )  # fmt: skip
 def test_resolve_snapshot_url(printer_url: str, snapshot_url: str, expected: str | None) -> None:
-    assert resolve_snapshot_url(printer_url, snapshot_url) == expected
+    assert (camera_candidates(printer_url, snapshot_url) or [None])[0] == expected
 
 
 def test_a_relative_url_on_moonrakers_port_is_also_tried_on_the_hosts_default_port() -> None:
     # Moonraker's reading: a partial URL is on the frontend's web server (port 80).
-    assert snapshot_candidates("http://10.0.0.5:7125", "/webcam/?action=snapshot") == [
+    assert camera_candidates("http://10.0.0.5:7125", "/webcam/?action=snapshot") == [
         "http://10.0.0.5:7125/webcam/?action=snapshot",
         "http://10.0.0.5/webcam/?action=snapshot",
     ]
-    assert snapshot_candidates("http://[fd00::5]:7125", "snap") == [
+    assert camera_candidates("http://[fd00::5]:7125", "snap") == [
         "http://[fd00::5]:7125/snap",
         "http://[fd00::5]/snap",
     ]
-    assert snapshot_candidates("http://voron.local", "/snap") == ["http://voron.local/snap"]
-    assert snapshot_candidates("http://10.0.0.5:7125", "http://cam/snap") == ["http://cam/snap"]
+    assert camera_candidates("http://voron.local", "/snap") == ["http://voron.local/snap"]
+    assert camera_candidates("http://10.0.0.5:7125", "http://cam/snap") == ["http://cam/snap"]
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from typing import Any, Final
 
 import httpx
 import pytest
-from playwright.sync_api import Page
+from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
 from tests.web.support import open_fleet, start_print, tile
@@ -62,6 +62,17 @@ def _bulk(page: Page) -> None:
     page.locator("#bulk:not([hidden])").wait_for()
 
 
+def _printer_page(page: Page) -> None:
+    tile(page, "fleet-b").locator(".name-link").click()  # the printing one
+    page.locator("#printer-view:not([hidden]) .pp-macro").first.wait_for()
+    page.wait_for_load_state("networkidle")
+
+
+def _cameras(page: Page) -> None:
+    page.goto(page.url.split("#")[0] + "#cameras")
+    expect(page.locator(".cam-img[src]")).to_have_count(3)  # a picture on every tile
+
+
 def _page(name: str) -> Callable[[Page], None]:
     def show(page: Page) -> None:
         page.goto(page.url.split("#")[0] + f"#{name}")
@@ -83,6 +94,8 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
     "history": _page("history"),
     "stats": _page("stats"),
     "notifications": _page("notifications"),
+    "printer-page": _printer_page,
+    "cameras": _cameras,
 }
 
 
@@ -135,8 +148,11 @@ ENGLISH: Final = frozenset(
 )
 """Words that give an untranslated English string away (none of them is Spanish)."""
 
+# Skipped: what the user named (printers, files, tags) and wrote (macros and their
+# descriptions come from the printer's own Klipper configuration).
 _WORDS = """() => {
-  const skip = "script, style, .name, .meta, .tag, .file-name, .c-file, .console-log, code, .mono";
+  const skip = "script, style, .name, .meta, .tag, .file-name, .c-file, .console-log, code, "
+    + ".mono, .pp-macro";
   const texts = [];
   const walker = document.createTreeWalker(document.body, NodeFilter.SHOW_TEXT);
   while (walker.nextNode()) {

@@ -64,6 +64,9 @@ def view(i: int) -> dict[str, Any]:
         "toolhead": {"position": [10.0, 20.0, 1.0, 0.0], "homed_axes": "xyz"},
         "fan_speed": 1.0,
         "speed_factor": 1.0,
+        "extrude_factor": 1.0,
+        "z_offset": 0.0,
+        "can_extrude": busy,
         "actions": {
             a: a in ("pause", "cancel", "emergency_stop") if busy else True for a in ACTIONS
         },

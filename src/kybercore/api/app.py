@@ -49,6 +49,7 @@ from kybercore import __version__
 from kybercore.aio import cancel_and_wait
 from kybercore.api import (
     audit,
+    controls,
     files,
     fleet,
     history,
@@ -58,6 +59,7 @@ from kybercore.api import (
     printers,
     session,
     temperatures,
+    webcams,
     ws,
 )
 from kybercore.api.deps import ORJSONResponse
@@ -174,6 +176,8 @@ def create_app(
     for module in (history, metrics):  # the ledger (issue 17)
         app.include_router(module.router)
     app.include_router(notifications.router)  # notifications (issue 18)
+    app.include_router(controls.router)  # the printer page (issue 19)
+    app.include_router(webcams.router)  # webcams: the printer page, the camera wall
     add_docs(app)
 
     @app.get("/", include_in_schema=False)

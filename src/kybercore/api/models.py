@@ -325,7 +325,10 @@ class PrinterView(BaseModel):
     bed: Heater
     toolhead: Toolhead
     fan_speed: float | None
-    speed_factor: float | None
+    speed_factor: float | None = Field(description="M220 as a fraction (1.0 = 100 %).")
+    extrude_factor: float | None = Field(description="M221 (flow) as a fraction.")
+    z_offset: float | None = Field(description="The Z babystep, mm (SET_GCODE_OFFSET).")
+    can_extrude: bool = Field(description="The hotend is above min_extrude_temp.")
     actions: dict[str, bool] = Field(description="Which actions are valid in the current state.")
     updated_at: float = Field(description="Unix time of the last message from Moonraker.")
 

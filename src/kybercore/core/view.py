@@ -158,6 +158,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
     stats = status.get("print_stats", {})
     display = status.get("display_status", {})
     toolhead = status.get("toolhead", {})
+    gcode_move = status.get("gcode_move", {})
     info: dict[str, Any] = stats["info"] if isinstance(stats.get("info"), dict) else {}
     print_state = str(stats.get("state", "")) if live.klippy_state == "ready" else ""
     filename = str(stats.get("filename") or "")
@@ -212,11 +213,21 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
             "homed_axes": str(toolhead.get("homed_axes") or ""),
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
-        speed_factor=_num(status.get("gcode_move", {}).get("speed_factor"), 2),
+        speed_factor=_num(gcode_move.get("speed_factor"), 2),
+        extrude_factor=_num(gcode_move.get("extrude_factor"), 2),
+        z_offset=_z_offset(gcode_move.get("homing_origin")),
+        can_extrude=status.get("extruder", {}).get("can_extrude") is True,
         actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )
     return view
+
+
+def _z_offset(origin: Any) -> float | None:
+    """The Z babystep: ``gcode_move.homing_origin`` is ``[x, y, z, e]``."""
+    if isinstance(origin, list) and len(origin) > 2 and isinstance(origin[2], (int, float)):
+        return round(float(origin[2]), 3)
+    return None
 
 
 def _meta_of(live: LivePrinter, filename: str) -> dict[str, Any]:

@@ -40,6 +40,8 @@ from kybercore.fleet.actions import (
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
 from kybercore.fleet.hub import Hub
 from kybercore.fleet.sessions import FleetPrinter, Listener, Sessions
+from kybercore.fleet.web_ui import WebUiFinder
+from kybercore.fleet.webcams import WebcamProxy
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
@@ -78,6 +80,8 @@ class FleetService:
         self._watcher: asyncio.Task[None] | None = None
         self._settling: asyncio.Task[None] | None = None
         self.config_error: str | None = None
+        self.web_ui = WebUiFinder(http)
+        self.webcams = WebcamProxy(http)
 
     # -- lifecycle ---------------------------------------------------------------------
 

@@ -218,6 +218,9 @@ class Sessions:
         elif isinstance(event, Notification):
             if event.method == "notify_gcode_response" and event.params:
                 self._hub.console(pid, str(event.params[0]))
+            elif event.method == "notify_filelist_changed":
+                # A nudge for the pages listing this printer's files: they reload the list.
+                self._hub.event({"type": "files", "printer": pid})
             # Moonraker's 1 s process stats prove the printer is alive even when nothing
             # changes; let `updated_at` show that, at most every LAST_SEEN_STEP seconds.
             if live.updated_at // LAST_SEEN_STEP == heard_before // LAST_SEEN_STEP:

@@ -46,10 +46,10 @@ FLEET_OBJECTS: Final[Mapping[str, list[str] | None]] = {
     "virtual_sdcard": ["progress", "is_active", "file_position", "file_size"],
     "display_status": ["progress", "message"],
     "toolhead": ["position", "homed_axes", "axis_minimum", "axis_maximum", "status"],
-    "extruder": ["temperature", "target", "power"],
+    "extruder": ["temperature", "target", "power", "can_extrude"],
     "heater_bed": ["temperature", "target", "power"],
     "fan": ["speed"],
-    "gcode_move": ["speed_factor", "extrude_factor"],
+    "gcode_move": ["speed_factor", "extrude_factor", "homing_origin"],
     "idle_timeout": ["state"],
 }
 """What the fleet view needs. ``configfile`` is large: query it once, never subscribe."""

@@ -145,5 +145,23 @@ gcode:
   M107
   CANCEL_PRINT_BASE
 """,
+        # Macros as farms have them: one for a button on the printer page, and a helper
+        # (its name starts with "_") that Mainsail, Fluidd and KyberCore show no button for.
+        """[gcode_macro PARK]
+description: Move the toolhead to the back corner, clear of the part
+gcode:
+  {% if "xyz" not in printer.toolhead.homed_axes %}
+    RESPOND TYPE=error MSG="PARK: home all axes first"
+  {% else %}
+    _KC_PARK_AT X={printer.toolhead.axis_maximum.x - 5} Y={printer.toolhead.axis_maximum.y - 5}
+  {% endif %}
+""",
+        """[gcode_macro _KC_PARK_AT]
+gcode:
+  SAVE_GCODE_STATE NAME=kc_park
+  G90
+  G1 X{params.X} Y{params.Y} F6000
+  RESTORE_GCODE_STATE NAME=kc_park
+""",
     ]
     return "\n".join(sections)

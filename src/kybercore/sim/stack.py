@@ -205,6 +205,10 @@ class PrinterStack:
             ],
         )
 
+    def stop_webcam(self) -> None:
+        """Stop the webcam only (tests use this for a camera that died)."""
+        self._stop("webcam")
+
     def stop_moonraker(self) -> None:
         """Stop Moonraker only (tests use this to take a printer off the network)."""
         self._stop("moonraker")

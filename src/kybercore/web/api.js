@@ -76,6 +76,10 @@ export const api = {
   hold: (id, reason) => request("POST", `${printer(id)}/hold`, { reason }),
   release: (id) => request("POST", `${printer(id)}/release`),
   // The ledger: history, statistics, temperatures (query: an object of filters).
+  // The printer page: its macros, and Mainsail/Fluidd on its host.
+  macros: (id) => request("GET", `${printer(id)}/macros`),
+  webUi: (id) => request("GET", `${printer(id)}/web_ui`),
+  webcams: (id) => request("GET", `${printer(id)}/webcams`),
   temperatures: (id, minutes) => request("GET", `${printer(id)}/temperatures?minutes=${minutes}`),
   history: (query) => request("GET", `/api/history?${queryString(query)}`),
   historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,

@@ -8,6 +8,11 @@ import { t } from "./i18n.js";
 import { can, currentSession } from "./session.js";
 import { serverNow, staleAge, statusOf } from "./store.js";
 
+/** The printer page's address: every name links there. */
+export function pageOf(id) {
+  return `#printer/${encodeURIComponent(id)}`;
+}
+
 /** Quick actions on every card; the rest live in the "more" menu. */
 const QUICK = ["pause", "resume", "cancel"];
 
@@ -145,7 +150,7 @@ export class Tile extends Card {
     const nameId = `tile-${p.id}-name`;
     const r = (this.refs = {
       select: h("input", { type: "checkbox", class: "select", dataset: { select: p.id } }),
-      name: h("h3", { class: "name", id: nameId }),
+      nameLink: h("a", { class: "name-link", href: pageOf(p.id) }),
       meta: h("p", { class: "meta" }),
       pill: h("span", { class: "pill" }),
       conn: h("span", { class: "badge conn" }),
@@ -170,6 +175,7 @@ export class Tile extends Card {
       gate: new GateStrip(),
       actions: buildActions(),
     });
+    r.name = h("h3", { class: "name", id: nameId }, r.nameLink);
     r.thumbImg.addEventListener("error", () => {
       r.thumbImg.hidden = true;
     });
@@ -197,7 +203,7 @@ export class Tile extends Card {
     const r = this.refs;
     const status = statusOf(p);
     if (this.changed("name", p.name)) {
-      setText(r.name, p.name);
+      setText(r.nameLink, p.name);
       r.name.title = p.name;
     }
     if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) {
@@ -304,7 +310,7 @@ export class Row extends Card {
     super(p.id);
     const r = (this.refs = {
       select: h("input", { type: "checkbox", class: "select", dataset: { select: p.id } }),
-      name: h("span", { class: "name" }),
+      nameLink: h("a", { class: "name-link", href: pageOf(p.id) }),
       model: h("small", { class: "model" }),
       pill: h("span", { class: "pill" }),
       file: h("span", { class: "file" }),
@@ -320,6 +326,7 @@ export class Row extends Card {
       gate: new GateStrip(),
       actions: buildActions(),
     });
+    r.name = h("span", { class: "name" }, r.nameLink);
     const td = (cls, ...kids) => h("td", { class: cls }, ...kids);
     this.el = h(
       "tr",
@@ -339,7 +346,7 @@ export class Row extends Card {
   update(p, now) {
     const r = this.refs;
     const status = statusOf(p);
-    if (this.changed("name", p.name)) setText(r.name, p.name);
+    if (this.changed("name", p.name)) setText(r.nameLink, p.name);
     if (this.changed("nameLabel", `${p.name}|${t("aria.select")}`)) {
       setAttr(r.select, "aria-label", t("aria.select", { name: p.name }));
       setAttr(r.progress, "aria-label", t("aria.progress", { name: p.name }));

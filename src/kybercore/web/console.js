@@ -142,6 +142,16 @@ function overlap(earlier, later) {
   return 0;
 }
 
+/**
+ * Run `script` on printer `id` as if typed into its console (the printer page's buttons do),
+ * so it is logged with Klipper's answer. Resolves to {ok, problem}: problem is what went
+ * wrong, in words, or null (also when the user declined a confirmation).
+ */
+export function consoleCommand(id, script) {
+  if (!state || state.id !== id) state = openLog(id);
+  return run(state, script);
+}
+
 async function run(s, script) {
   add(s, { kind: "sent", text: `> ${script}` });
   const seen = []; // what /ws brought while the command ran
@@ -152,7 +162,7 @@ async function run(s, script) {
     const result = await send(s.id, "gcode", { script }, false, false);
     if (!result) {
       add(s, { kind: "error", text: t("console.not_sent") });
-      return;
+      return { ok: false, problem: null };
     }
     const response = result.response || [];
     // /ws may lag behind the answer: show what it has not brought yet, and skip it then.
@@ -166,10 +176,12 @@ async function run(s, script) {
       add(s, responseEntry(text));
       s.owed.push({ text, until: Date.now() + OWED_MS });
     }
-    const failed = response.some(isErrorLine);
-    add(s, { kind: failed ? "error" : "ok", text: `${t(failed ? "console.failed" : "console.done")} ${script}` });
+    const errors = response.filter(isErrorLine);
+    add(s, { kind: errors.length ? "error" : "ok", text: `${t(errors.length ? "console.failed" : "console.done")} ${script}` });
+    return { ok: !errors.length, problem: errors.length ? errors.join(" ") : null };
   } catch (error) {
     add(s, { kind: "error", text: messageOf(error) });
+    return { ok: false, problem: messageOf(error) };
   } finally {
     s.running.delete(seen);
   }

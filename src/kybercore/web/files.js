@@ -16,11 +16,30 @@ const META_PARALLEL = 3;
 const TAIL = 18;
 let state = null; // {id, panel, files, shown, observer, queue, active, body}
 
-/** Fill `panel` with printer `id`'s files and the upload zone. */
-export function showFiles(panel, id) {
+// The printer page's wider list adds what a slicer wrote into each file.
+const SLICER_COLUMNS = [
+  ["c-mat", "files.material"],
+  ["c-nozzle", "files.nozzle"],
+  ["c-layer", "files.layer"],
+];
+const SORTS = {
+  modified: (a, b) => b.modified - a.modified,
+  name: (a, b) => a.path.localeCompare(b.path),
+  size: (a, b) => b.size - a.size,
+};
+
+/** Fill `panel` with printer `id`'s files and the upload zone; `wide` adds the slicer's
+ * material, nozzle and layer height columns. */
+export function showFiles(panel, id, { wide = false } = {}) {
   state?.observer?.disconnect();
   const filter = h("input", { type: "search", class: "files-filter", placeholder: t("files.filter"), "aria-label": t("files.filter") });
   const refresh = h("button", { type: "button", class: "btn small", onclick: () => load() }, icon("refresh"), h("span", { text: t("files.refresh") }));
+  const sort = h(
+    "select",
+    { class: "files-sort", "aria-label": t("files.sort") },
+    Object.keys(SORTS).map((key) => h("option", { value: key, text: t(`files.sort_${key}`) })),
+  );
+  sort.addEventListener("change", () => render(PAGE));
   const startBox = h("input", { type: "checkbox" });
   const bar = h("span", { class: "bar" });
   const progress = h("div", { class: "progress", role: "progressbar", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0", "aria-label": t("upload.progress"), hidden: true }, bar);
@@ -36,7 +55,7 @@ export function showFiles(panel, id) {
       h(
         "tr",
         {},
-        [["c-file", "files.name"], ["c-size", "files.size"], ["c-date", "files.modified"], ["c-est", "files.estimated"], ["c-print", "files.actions"]].map(([cls, key]) =>
+        [["c-file", "files.name"], ["c-size", "files.size"], ["c-date", "files.modified"], ["c-est", "files.estimated"], ...(wide ? SLICER_COLUMNS : []), ["c-print", "files.actions"]].map(([cls, key]) =>
           h("th", { scope: "col", class: cls }, cls === "c-print" ? h("span", { class: "visually-hidden", text: t(key) }) : t(key)),
         ),
       ),
@@ -47,13 +66,13 @@ export function showFiles(panel, id) {
   const message = h("p", { class: "files-message", role: "status" });
   panel.replaceChildren(
     h("div", { class: "upload-box", hidden: !can("operator") }, zone, h("label", { class: "check" }, startBox, h("span", { text: t("upload.start_after") })), progress, status),
-    h("div", { class: "files-toolbar" }, filter, refresh),
+    h("div", { class: "files-toolbar" }, filter, sort, refresh),
     message,
     h("div", { class: "table-scroll" }, table),
     more,
   );
   const observer = new IntersectionObserver(onVisible, { root: panel.closest(".drawer-body") || null });
-  state = { id, panel, files: [], shown: 0, observer, queue: [], active: 0, body, more, message, filter, meta: new Map() };
+  state = { id, panel, files: [], shown: 0, observer, queue: [], active: 0, body, more, message, filter, sort, wide, reload: null, meta: new Map() };
   filter.addEventListener("input", () => render(PAGE));
   panel.addEventListener("click", (event) => {
     const print = event.target.closest("button[data-print]");
@@ -140,7 +159,19 @@ function canStart(id) {
 
 export function hideFiles() {
   state?.observer?.disconnect();
+  clearTimeout(state?.reload);
   state = null;
+}
+
+/** The printer's file list changed (an upload, a delete, from anywhere): reload it once
+ * the burst is over (an upload of 50 files is 50 notifications). */
+export function onFilesChanged(id) {
+  const s = state;
+  if (!s || s.id !== id) return;
+  clearTimeout(s.reload);
+  s.reload = setTimeout(() => {
+    if (state === s) load();
+  }, 500);
 }
 
 /** Enable the print buttons only while the printer can start a print. */
@@ -173,7 +204,7 @@ async function load() {
 function render(count) {
   const s = state;
   const words = s.filter.value.trim().toLowerCase();
-  const list = words ? s.files.filter((f) => f.path.toLowerCase().includes(words)) : s.files;
+  const list = (words ? s.files.filter((f) => f.path.toLowerCase().includes(words)) : [...s.files]).sort(SORTS[s.sort.value]);
   s.shown = Math.min(count, list.length);
   s.observer.disconnect();
   s.queue = [];
@@ -181,6 +212,7 @@ function render(count) {
   const operator = can("operator");
   const rows = list.slice(0, s.shown).map((file) => {
     const estimate = h("td", { class: "c-est" });
+    const slicer = s.wide ? SLICER_COLUMNS.map(([cls]) => h("td", { class: cls })) : [];
     const thumb = h("span", { class: "file-thumb" });
     const row = h(
       "tr",
@@ -189,6 +221,7 @@ function render(count) {
       h("td", { class: "c-size", text: fmt.size(file.size) }),
       h("td", { class: "c-date", text: fmt.dateTime(file.modified) }),
       estimate,
+      ...slicer,
       h(
         "td",
         { class: "c-print" },
@@ -200,7 +233,7 @@ function render(count) {
         ),
       ),
     );
-    row._fill = (meta) => fillMeta(s.id, meta, estimate, thumb);
+    row._fill = (meta) => fillMeta(s.id, meta, estimate, thumb, slicer);
     const known = s.meta.get(`${file.path}|${file.modified}`);
     if (known) row._fill(known);
     else s.observer.observe(row);
@@ -210,8 +243,14 @@ function render(count) {
   setHidden(s.more, s.shown >= list.length);
 }
 
-function fillMeta(id, meta, estimate, thumb) {
+function fillMeta(id, meta, estimate, thumb, slicer) {
   estimate.textContent = typeof meta.estimated_time === "number" ? fmt.duration(meta.estimated_time) : "—";
+  if (slicer.length) {
+    const [material, nozzle, layer] = slicer;
+    material.textContent = meta.filament_type || "—";
+    nozzle.textContent = typeof meta.nozzle_diameter === "number" ? `${meta.nozzle_diameter} mm` : "—";
+    layer.textContent = typeof meta.layer_height === "number" ? `${meta.layer_height} mm` : "—";
+  }
   const thumbs = (meta.thumbnails || []).filter((x) => x.relative_path).sort((a, b) => a.width - b.width);
   const pick = thumbs.find((x) => x.width >= 32) || thumbs[thumbs.length - 1];
   if (pick && !thumb.firstChild) thumb.append(h("img", { src: api.thumbnailUrl(id, pick.relative_path), alt: "", loading: "lazy" }));

@@ -1,15 +1,18 @@
 // KyberCore's dashboard: wires the live connection, the overview, actions, bulk actions,
 // the printer drawer (files, console), printer forms, language and theme together.
 import { initActions, onCardAction } from "./actions.js";
+import { CAMERAS_HASH, showCamerasPage } from "./cameras.js";
 import { initBulk, updateBulkBar } from "./bulk.js";
 import { toast } from "./dialogs.js";
 import { setText } from "./dom.js";
 import { initDrawer, onConsoleFrame, openDrawer, relabelDrawer } from "./drawer.js";
+import { onFilesChanged } from "./files.js";
 import * as fmt from "./format.js";
 import { getLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
+import { printerOfHash, showPrinterPage } from "./printer_page.js";
 import { LEDGER_PAGES, showLedgerPage } from "./ledger_views.js";
 import { NOTIFY_HASH, showNotificationsPage } from "./notifications.js";
 import { initQueue, relabelQueue } from "./queue.js";
@@ -103,12 +106,16 @@ function applySession() {
   $("add-printer").hidden = !can("admin");
 }
 
-/** Printers, Queue, History, Statistics or Notifications, from the address (#queue...), so
- * any can be bookmarked. */
+/** Printers, Queue, History, Statistics, Notifications, Cameras or one printer's page, from
+ * the address (#queue, #printer/<id>...), so any can be bookmarked. */
 function route() {
   const hash = location.hash;
-  const page = hash === "#queue" ? "queue" : hash === NOTIFY_HASH ? "notifications" : LEDGER_PAGES[hash] || "fleet";
+  const printerId = printerOfHash(hash);
+  const simple = { "#queue": "queue", [NOTIFY_HASH]: "notifications", [CAMERAS_HASH]: "cameras", ...LEDGER_PAGES };
+  const page = printerId !== null ? "printer" : simple[hash] || "fleet";
   document.body.dataset.page = page;
+  showPrinterPage(printerId);
+  showCamerasPage(page);
   $("queue-view").hidden = page !== "queue";
   showLedgerPage(page);
   showNotificationsPage(page);
@@ -125,6 +132,7 @@ function onEvent(frame) {
   const name = printers.get(frame.printer)?.name || frame.printer;
   if (frame.type === "queue") refreshQueue();
   else if (frame.type === "gcode_response") onConsoleFrame(frame);
+  else if (frame.type === "files") onFilesChanged(frame.printer);
   else if (frame.type === "connection" && frame.connection === "auth_failed") {
     toast({ kind: "error", title: name, message: `${t("notify.auth_failed")} ${frame.message || ""}`.trim() });
   } else if (frame.type === "klippy" && (frame.state === "shutdown" || frame.state === "error")) {

@@ -227,7 +227,8 @@ function updateCounts() {
         h("span", { text: t(`group.${group}`, { n: counts[group] }) }),
       ),
     ),
-    next ? h("span", { class: "next-finish", text: t("summary.next", { name: next.name, when: fmt.doneText(next.job, serverNow()) }) }) : null,
+    // replaceChildren() writes a null as the text "null": leave the slot out instead.
+    ...(next ? [h("span", { class: "next-finish", text: t("summary.next", { name: next.name, when: fmt.doneText(next.job, serverNow()) }) })] : []),
   );
 }
 

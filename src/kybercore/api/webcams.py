@@ -1,0 +1,89 @@
+"""A printer's webcams, proxied: ``GET /api/printers/{id}/webcams`` lists them with
+KyberCore's own snapshot and stream URLs, which relay the camera's JPEG and MJPEG. Browsers
+never need a route to the printers' network, and KyberCore's access rules apply.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path
+from fastapi.responses import Response, StreamingResponse
+from pydantic import BaseModel, Field
+
+from kybercore.api.deps import VIEWER, Service
+from kybercore.api.models import ERROR_RESPONSES
+from kybercore.fleet.webcams import Webcam
+
+router = APIRouter(prefix="/api/printers")
+
+CameraName = Annotated[str, Path(max_length=100, description="The webcam's name in Moonraker.")]
+# A snapshot is "now": no cache may serve an old picture of a print.
+_NO_STORE = {"Cache-Control": "no-store"}
+
+
+class WebcamOut(BaseModel):
+    """One enabled webcam, with the URLs a browser loads through KyberCore."""
+
+    name: str
+    snapshot_url: str = Field(description="A JPEG, now (relayed from the camera).")
+    stream_url: str = Field(description="The MJPEG stream (relayed from the camera).")
+    flip_horizontal: bool
+    flip_vertical: bool
+    rotation: int = Field(description="0, 90, 180 or 270 degrees.")
+    aspect_ratio: str = Field(description='As Moonraker has it, e.g. "4:3".')
+
+
+async def _camera(service: Service, printer_id: str, name: str) -> Webcam:
+    url = str(service.config(printer_id).moonraker_url)
+    return await service.webcams.camera(service.client(printer_id), url, printer_id, name)
+
+
+@router.get(
+    "/{printer_id}/webcams",
+    response_model=list[WebcamOut],
+    responses=ERROR_RESPONSES,
+    dependencies=[VIEWER],
+)
+async def webcams(service: Service, printer_id: str) -> list[WebcamOut]:
+    """The printer's enabled webcams, from Moonraker's ``/server/webcams/list``."""
+    url = str(service.config(printer_id).moonraker_url)
+    base = f"/api/printers/{printer_id}/webcams"
+    return [
+        WebcamOut(
+            name=cam.name,
+            snapshot_url=f"{base}/{cam.name}/snapshot",
+            stream_url=f"{base}/{cam.name}/stream",
+            flip_horizontal=cam.flip_horizontal,
+            flip_vertical=cam.flip_vertical,
+            rotation=cam.rotation,
+            aspect_ratio=cam.aspect_ratio,
+        )
+        for cam in await service.webcams.cameras(service.client(printer_id), url)
+    ]
+
+
+@router.get(
+    "/{printer_id}/webcams/{name}/snapshot",
+    responses={**ERROR_RESPONSES, 200: {"content": {"image/jpeg": {}}}},
+    response_class=Response,
+    dependencies=[VIEWER],
+)
+async def snapshot(service: Service, printer_id: str, name: CameraName) -> Response:
+    """One JPEG from the webcam."""
+    cam = await _camera(service, printer_id, name)
+    image = await service.webcams.snapshot(cam, printer_id)
+    return Response(image, media_type="image/jpeg", headers=_NO_STORE)
+
+
+@router.get(
+    "/{printer_id}/webcams/{name}/stream",
+    responses={**ERROR_RESPONSES, 200: {"content": {"multipart/x-mixed-replace": {}}}},
+    response_class=StreamingResponse,
+    dependencies=[VIEWER],
+)
+async def stream(service: Service, printer_id: str, name: CameraName) -> StreamingResponse:
+    """The webcam's MJPEG stream, relayed until the browser goes away."""
+    cam = await _camera(service, printer_id, name)
+    kind, body = await service.webcams.stream(cam, printer_id)
+    return StreamingResponse(body, media_type=kind, headers=_NO_STORE)

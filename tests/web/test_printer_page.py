@@ -1,0 +1,134 @@
+"""The printer page (#printer/<id>) in Chromium over real virtual printers: reached from a
+tile and left with the back button; homing, jogging, a hotend target and a macro reach
+Klipper; after an e-stop one click brings Klippy back; Spanish, and a phone."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+
+import httpx
+import pytest
+from playwright.sync_api import Locator, Page, expect
+
+from tests.helpers import KyberCoreServer
+from tests.web.support import ARTIFACTS, open_fleet, tile, wait_until
+
+pytestmark = pytest.mark.browser
+
+
+def view(api: httpx.Client, printer_id: str) -> dict[str, object]:
+    body: dict[str, object] = api.get(f"/api/printers/{printer_id}").json()
+    return body
+
+
+def position(api: httpx.Client, printer_id: str) -> list[float]:
+    toolhead = view(api, printer_id)["toolhead"]
+    assert isinstance(toolhead, dict)
+    return list(toolhead["position"] or [])
+
+
+def open_page(page: Page, url: str, printer_id: str, name: str) -> Locator:
+    """Open the printer's page from its tile; returns the page's section."""
+    open_fleet(page, url)
+    tile(page, printer_id).get_by_role("link", name=name).click()
+    section = page.locator("#printer-view")
+    expect(section.get_by_role("heading", level=1, name=name)).to_be_visible()
+    return section
+
+
+def test_a_tile_opens_the_page_and_back_returns_to_the_fleet(
+    page: Page, kybercore_server: KyberCoreServer
+) -> None:
+    section = open_page(page, kybercore_server.url, "fleet-a", "Printer A")
+    assert page.url.endswith("#printer/fleet-a")
+    expect(page.locator("#fleet")).to_be_hidden()
+    expect(section.locator("#pp-temps .pp-graph[data-points]")).to_be_attached()
+    expect(section.get_by_role("log")).to_be_visible()  # the console
+    expect(section.locator("#pp-files-card th", has_text="Material")).to_be_visible()
+    page.go_back()
+    expect(page.locator(".tile")).to_have_count(3)
+    expect(section).to_be_hidden()
+    page.go_forward()  # linkable: the address alone opens it
+    expect(section.get_by_role("heading", level=1, name="Printer A")).to_be_visible()
+    page.reload()
+    expect(section.get_by_role("heading", level=1, name="Printer A")).to_be_visible()
+
+
+def test_home_jog_target_and_a_macro_reach_klipper(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    # Klipper forgets homing only on a restart: start from unhomed to see the guard.
+    api.post("/api/printers/fleet-a/gcode", json={"script": "M84"})
+    wait_until(lambda: view(api, "fleet-a")["toolhead"]["homed_axes"] == "", what="unhomed")  # type: ignore[index]
+    section = open_page(page, kybercore_server.url, "fleet-a", "Printer A")
+    jog = section.get_by_role("button", name="X+")
+    expect(jog).to_be_disabled()
+    expect(section.locator("#pp-toolhead .pp-hint")).to_have_text("Home X Y Z before moving it.")
+    extrude = section.get_by_role("button", name="Extrude")
+    expect(extrude).to_be_disabled()  # cold hotend: Klipper's min_extrude_temp
+    expect(section.locator("#pp-extruder .pp-hint")).to_contain_text("min_extrude_temp")
+
+    section.get_by_role("button", name="Home all").click()
+    expect(jog).to_be_enabled(timeout=60_000)
+    expect(section.locator(".pp-homed")).to_have_text("Homed: X Y Z")
+    start_x = position(api, "fleet-a")[0]
+    section.get_by_role("radiogroup", name="Step (mm)").get_by_text("10", exact=True).click()
+    jog.click()
+    wait_until(lambda: abs(position(api, "fleet-a")[0] - (start_x + 10)) < 0.01, what="X +10")
+    expect(section.locator(".pp-position")).to_contain_text(f"X {start_x + 10:.2f}")
+
+    target = section.get_by_role("spinbutton", name="New target for Hotend, °C")
+    target.fill("45")
+    target.press("Enter")
+    wait_until(lambda: view(api, "fleet-a")["extruder"]["target"] == 45, what="target 45")  # type: ignore[index]
+    expect(section.locator('tr[data-heater="extruder"] .pp-target')).to_contain_text("45")
+
+    macros = section.locator(".pp-macros")
+    expect(macros.get_by_role("button", name="PARK")).to_be_visible()
+    expect(macros.locator("button", has_text=re.compile("^_"))).to_have_count(0)
+    macros.get_by_role("button", name="PARK").click()
+    wait_until(lambda: position(api, "fleet-a")[:2] == [215.0, 215.0], what="parked")
+    expect(section.get_by_role("log")).to_contain_text("PARK")
+
+
+def test_after_an_estop_one_click_restarts_the_firmware(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    section = open_page(page, kybercore_server.url, "fleet-c", "Printer C")
+    restart = section.get_by_role("button", name="Firmware restart")
+    expect(restart).to_be_hidden()
+    section.get_by_role("button", name="Emergency stop").click()  # one click, no dialog
+    expect(restart).to_be_visible(timeout=30_000)
+    assert view(api, "fleet-c")["klippy_state"] == "shutdown"
+    expect(section.locator(".pp-hint").first).to_have_text(
+        "The printer is not ready: nothing can move."
+    )
+    restart.click()
+    wait_until(lambda: view(api, "fleet-c")["klippy_state"] == "ready", timeout=60, what="ready")
+    expect(restart).to_be_hidden()
+
+
+def test_the_page_in_spanish_and_on_a_phone(
+    new_page: Callable[..., Page], kybercore_server: KyberCoreServer
+) -> None:
+    wide = new_page(locale="es-ES", color_scheme="light")
+    section = open_page(wide, kybercore_server.url, "fleet-b", "Printer B")
+    expect(section.get_by_role("heading", name="Cabezal")).to_be_visible()
+    expect(section.get_by_role("button", name="Origen de todos")).to_be_visible()
+    expect(section.get_by_role("link", name="Todas las impresoras")).to_be_visible()
+    expect(section.get_by_role("button", name="PARK")).to_be_visible()  # macros loaded
+    # No stray "null" where the header has nothing to say (no print to finish).
+    expect(wide.locator("#counts")).not_to_contain_text("null")
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    wide.screenshot(path=str(ARTIFACTS / "printer_page.png"), full_page=True)
+
+    phone = new_page(width=390, height=844)
+    section = open_page(phone, kybercore_server.url, "fleet-b", "Printer B")
+    for name in ("Home all", "X+", "Extrude"):
+        box = section.get_by_role("button", name=name).bounding_box()
+        assert box is not None, name
+        assert box["height"] >= 44, (name, box)
+    width = phone.evaluate("document.documentElement.scrollWidth")
+    assert width <= 390, f"the page scrolls sideways: {width} px"
+    phone.screenshot(path=str(ARTIFACTS / "printer_page_phone.png"), full_page=True)
