@@ -78,7 +78,7 @@ async function load() {
 function build(cams) {
   stop();
   tiles = new Map();
-  const grid = h("div", { class: "cam-grid" });
+  const grid = h("ul", { class: "cam-grid" });
   const ids = [...cams.keys()].sort((a, b) => (printers.get(a)?.name || a).localeCompare(printers.get(b)?.name || b));
   for (const id of ids) {
     const cam = cams.get(id);

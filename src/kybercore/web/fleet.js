@@ -1,10 +1,12 @@
 // KyberCore's dashboard: wires the live connection, the overview, actions, bulk actions,
 // the printer drawer (files, console), printer forms, language and theme together.
 import { initActions, onCardAction } from "./actions.js";
+import { alertOperator, initAlerts } from "./alerts.js";
 import { CAMERAS_HASH, showCamerasPage } from "./cameras.js";
 import { initBulk, updateBulkBar } from "./bulk.js";
 import { toast } from "./dialogs.js";
 import { setText } from "./dom.js";
+import { initDensity } from "./density.js";
 import { initDrawer, onConsoleFrame, openDrawer, relabelDrawer } from "./drawer.js";
 import { onFilesChanged } from "./files.js";
 import * as fmt from "./format.js";
@@ -20,6 +22,7 @@ import { refreshQueue } from "./queue_data.js";
 import { can, currentSession, loadSession, login, logout, needsLogin, onSessionChange } from "./session.js";
 import { printers, subscribe } from "./store.js";
 import { uploadDialog } from "./uploads.js";
+import { initUtilisation, relabelUtilisation } from "./utilisation.js";
 
 const $ = (id) => document.getElementById(id);
 let lastData = null; // when the last frame changed something (for the banner)
@@ -137,6 +140,7 @@ function onEvent(frame) {
     toast({ kind: "error", title: name, message: `${t("notify.auth_failed")} ${frame.message || ""}`.trim() });
   } else if (frame.type === "klippy" && (frame.state === "shutdown" || frame.state === "error")) {
     toast({ kind: "warn", title: name, message: frame.message || t("notify.shutdown") });
+    alertOperator({ kind: "error", title: name, message: frame.message || t("notify.shutdown") });
   } else if (frame.type === "config") {
     if (frame.ok) toast({ kind: "info", message: t("config.reloaded") });
     else toast({ kind: "error", title: t("config.refused"), message: frame.message });
@@ -156,7 +160,9 @@ function onStoreChange(change) {
     if (!p || p.connection !== "online" || (from !== "printing" && from !== "paused")) continue;
     if (to !== "complete" && to !== "error") continue;
     const filename = fmt.baseName(p.job?.filename);
-    toast({ kind: to === "complete" ? "ok" : "error", title: p.name, message: t(`notify.${to}`, { filename }), timeout: to === "complete" ? 10000 : 0 });
+    const kind = to === "complete" ? "ok" : "error";
+    toast({ kind, title: p.name, message: t(`notify.${to}`, { filename }), timeout: to === "complete" ? 10000 : 0 });
+    alertOperator({ kind, title: p.name, message: t(`notify.${to}`, { filename }) });
   }
 }
 
@@ -166,6 +172,9 @@ async function main() {
   lang.value = getLang();
   lang.addEventListener("change", () => setLang(lang.value));
   initTheme();
+  initDensity($("density"));
+  initAlerts($("alerts-notify"), $("alerts-sound"));
+  initUtilisation($("utilisation"));
   initActions({ openDrawer, editPrinter: printerDialog, removePrinter });
   initOverview(
     {
@@ -229,6 +238,9 @@ async function main() {
     updateBulkBar();
     relabelDrawer();
     relabelQueue();
+    initDensity($("density"));
+    initAlerts($("alerts-notify"), $("alerts-sound"));
+    relabelUtilisation();
   });
   document.addEventListener("keydown", (event) => {
     const typing = event.target.closest?.("input, textarea, select, [contenteditable]");
