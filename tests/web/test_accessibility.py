@@ -73,6 +73,11 @@ def _cameras(page: Page) -> None:
     expect(page.locator(".cam-img[src]")).to_have_count(3)  # a picture on every tile
 
 
+def _find_printers(page: Page) -> None:
+    page.locator("#find-printers").click()
+    expect(page.locator("dialog[open] .find-body .btn")).to_be_enabled()  # done listening
+
+
 def _page(name: str) -> Callable[[Page], None]:
     def show(page: Page) -> None:
         page.goto(page.url.split("#")[0] + f"#{name}")
@@ -96,6 +101,7 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
     "notifications": _page("notifications"),
     "printer-page": _printer_page,
     "cameras": _cameras,
+    "find-printers": _find_printers,
 }
 
 

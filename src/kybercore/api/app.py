@@ -50,6 +50,7 @@ from kybercore.aio import cancel_and_wait
 from kybercore.api import (
     audit,
     controls,
+    discovery,
     files,
     fleet,
     history,
@@ -178,6 +179,7 @@ def create_app(
     app.include_router(notifications.router)  # notifications (issue 18)
     app.include_router(controls.router)  # the printer page (issue 19)
     app.include_router(webcams.router)  # webcams: the printer page, the camera wall
+    app.include_router(discovery.router)  # "Find printers" (mDNS)
     add_docs(app)
 
     @app.get("/", include_in_schema=False)

@@ -29,6 +29,16 @@ AllowedHosts = Annotated[
         show_default=False,
     ),
 ]
+MdnsInterfaces = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--mdns-interface",
+        envvar="KYBERCORE_MDNS_INTERFACES",
+        help="The IP address of an interface \"Find printers\" browses for Moonraker's mDNS "
+        "announcements on; repeat it for more (default: every interface).",
+        show_default=False,
+    ),
+]
 DatabaseUrl = Annotated[
     str | None,
     typer.Option(

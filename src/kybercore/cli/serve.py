@@ -24,6 +24,7 @@ from kybercore.cli.options import (
     DatabaseUrl,
     HeatingBudget,
     Host,
+    MdnsInterfaces,
     Port,
     PrintersFile,
 )
@@ -49,6 +50,7 @@ def serve(
     port: Port = 8000,
     printers_file: PrintersFile = None,
     allowed_host: AllowedHosts = None,
+    mdns_interface: MdnsInterfaces = None,
     database_url: DatabaseUrl = None,
     heating_budget: HeatingBudget = DEFAULT_HEATING_BUDGET,
     advisor_url: Annotated[
@@ -99,6 +101,7 @@ def serve(
         log_level=log_level,
         database_url=database,
         heating_budget=heating_budget,
+        mdns_interfaces=mdns_interface or None,
     )
 
 
@@ -287,6 +290,7 @@ def _run_server(
     database_url: str | None = None,
     heating_budget: int = DEFAULT_HEATING_BUDGET,
     on_started: OnStarted | None = None,
+    mdns_interfaces: list[str] | None = None,
 ) -> None:
     import uvicorn
 
@@ -306,6 +310,7 @@ def _run_server(
         on_started=on_started,
         advisor=advisor,
         on_settled=freeze_heap,
+        mdns_interfaces=mdns_interfaces,
     )
     uvicorn.run(
         app,

@@ -10,7 +10,7 @@ reports a success that did not happen.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, BinaryIO, Final
 
 import httpx
@@ -67,9 +67,11 @@ class FleetService:
         watch_interval: float = 1.0,
         advisor: AdvisorConfig | None = None,
         on_settled: Callable[[], None] | None = None,
+        mdns_interfaces: Sequence[str] | None = None,
     ) -> None:
         """``on_settled`` is called once, when every printer is online or disabled after
-        :meth:`start` (or after two minutes): ``kybercore serve`` freezes the heap then."""
+        :meth:`start` (or after two minutes): ``kybercore serve`` freezes the heap then.
+        ``mdns_interfaces``: the addresses "Find printers" browses on (None: all)."""
         self.registry = registry
         self._http = http
         self._watch_interval = watch_interval
@@ -82,6 +84,7 @@ class FleetService:
         self.config_error: str | None = None
         self.web_ui = WebUiFinder(http)
         self.webcams = WebcamProxy(http)
+        self.mdns_interfaces = mdns_interfaces
 
     # -- lifecycle ---------------------------------------------------------------------
 

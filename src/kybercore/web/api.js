@@ -80,6 +80,7 @@ export const api = {
   macros: (id) => request("GET", `${printer(id)}/macros`),
   webUi: (id) => request("GET", `${printer(id)}/web_ui`),
   webcams: (id) => request("GET", `${printer(id)}/webcams`),
+  discover: (seconds) => request("GET", `/api/discovery?seconds=${seconds}`),
   temperatures: (id, minutes) => request("GET", `${printer(id)}/temperatures?minutes=${minutes}`),
   history: (query) => request("GET", `/api/history?${queryString(query)}`),
   historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,

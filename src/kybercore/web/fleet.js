@@ -7,6 +7,7 @@ import { initBulk, updateBulkBar } from "./bulk.js";
 import { toast } from "./dialogs.js";
 import { setText } from "./dom.js";
 import { initDensity } from "./density.js";
+import { findPrinters } from "./discovery.js";
 import { initDrawer, onConsoleFrame, openDrawer, relabelDrawer } from "./drawer.js";
 import { onFilesChanged } from "./files.js";
 import * as fmt from "./format.js";
@@ -107,6 +108,7 @@ function applySession() {
   $("who").hidden = session.access !== "tokens" || !session.role;
   setText($("who-name"), session.role ? `${session.name} · ${t(`session.role_${session.role}`)}` : "");
   $("add-printer").hidden = !can("admin");
+  $("find-printers").hidden = !can("admin");
 }
 
 /** Printers, Queue, History, Statistics, Notifications, Cameras or one printer's page, from
@@ -231,6 +233,7 @@ async function main() {
   window.addEventListener("hashchange", route);
   route();
   $("add-printer").addEventListener("click", () => printerDialog());
+  $("find-printers").addEventListener("click", () => findPrinters());
   translateStatic(document); // the bulk bar and menus built above carry data-i18n too
   onLangChange(() => {
     lang.value = getLang();

@@ -1,0 +1,92 @@
+"""Finding Moonraker servers over mDNS: the announcement read as Moonraker's [zeroconf]
+component writes it, and a real python-zeroconf announcer on loopback found by browsing.
+
+Why not Moonraker's own [zeroconf]: it announces on every interface of the machine
+(python-zeroconf's InterfaceChoice.All, not configurable), which would put multicast on the
+LAN; the tests keep to loopback. The announcer below sends what Moonraker sends, for a real
+virtual printer's Moonraker.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import AsyncIterator
+
+import httpx
+import pytest
+from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
+
+from kybercore.fleet.discovery import SERVICE_TYPE, browse, found_of, slug
+from kybercore.sim.stack import PrinterStack
+from tests.conftest import MDNS
+
+
+def moonraker_announcement(name: str, port: int, server: str, **props: str) -> AsyncServiceInfo:
+    """What Moonraker's zeroconf component registers (components/zeroconf.py)."""
+    properties = {"uuid": "4f1c2d3e5a6b", "https_port": "", "version": "v0.9.3", **props}
+    return AsyncServiceInfo(
+        SERVICE_TYPE,
+        f"{name}.{SERVICE_TYPE}",
+        addresses=[socket.inet_aton("127.0.0.1")],
+        port=port,
+        properties={**properties, "route_prefix": ""},
+        server=server,
+    )
+
+
+def test_an_announcement_becomes_an_address_to_add() -> None:
+    found = found_of(
+        f"Moonraker-4f1c2d3e @ voron.{SERVICE_TYPE}",
+        [socket.inet_aton("192.168.1.50")],
+        7125,
+        "voron.local.",
+        {b"uuid": b"4f1c", b"version": b"v0.9.3", b"https_port": b"", b"route_prefix": b""},
+    )
+    assert found is not None
+    assert found.url == "http://192.168.1.50:7125"
+    assert found.version == "v0.9.3"
+    assert found.suggested_id == "voron"
+    assert found.name == "Moonraker-4f1c2d3e @ voron"
+
+
+def test_https_ipv6_and_a_route_prefix() -> None:
+    found = found_of(
+        f"M.{SERVICE_TYPE}", [socket.inet_pton(socket.AF_INET6, "fd00::5")], 7125, None,
+        {b"https_port": b"7130", b"route_prefix": b"/printer1", b"version": None},
+    )  # fmt: skip
+    assert found is not None
+    assert found.url == "https://[fd00::5]:7130/printer1"
+    assert found.suggested_id == "m"
+    assert found_of("x", [], 7125, None, {}) is None
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [("Voron 2.4", "voron-2-4"), ("  ", "printer"), ("A" * 80, "a" * 64), ("MK4_01", "mk4-01")],
+)
+def test_slug(text: str, expected: str) -> None:
+    assert slug(text) == expected
+
+
+@pytest.fixture
+async def announcer() -> AsyncIterator[AsyncZeroconf]:
+    zc = AsyncZeroconf(interfaces=[MDNS])
+    yield zc
+    await zc.async_unregister_all_services()
+    await zc.async_close()
+
+
+async def test_browsing_finds_a_real_moonraker_announced_on_loopback(
+    announcer: AsyncZeroconf, printer: PrinterStack, http: httpx.AsyncClient
+) -> None:
+    port = int(printer.url.rsplit(":", 1)[1])
+    await announcer.async_register_service(
+        moonraker_announcement("Moonraker-4f1c2d3e", port, "kc-lab.local.")
+    )
+    found = await browse(2, [MDNS])
+    [mine] = [f for f in found if f.port == port]
+    assert mine.url == printer.url
+    assert mine.suggested_id == "kc-lab"
+    # The address found is a working Moonraker.
+    answer = await http.get(f"{mine.url}/server/info")
+    assert answer.json()["result"]["klippy_state"] == "ready"
