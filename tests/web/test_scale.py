@@ -67,6 +67,7 @@ def view(i: int) -> dict[str, Any]:
         "extrude_factor": 1.0,
         "z_offset": 0.0,
         "can_extrude": busy,
+        "spool": None,
         "actions": {
             a: a in ("pause", "cancel", "emergency_stop") if busy else True for a in ACTIONS
         },

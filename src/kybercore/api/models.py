@@ -296,6 +296,16 @@ class Toolhead(BaseModel):
     homed_axes: str
 
 
+class SpoolOut(BaseModel):
+    """The printer's active Spoolman spool (through Moonraker's ``[spoolman]``)."""
+
+    id: int
+    name: str = Field(description="Vendor and filament name.")
+    material: str
+    color_hex: str = Field(description='"RRGGBB", or "" when unknown.')
+    remaining_g: float | None = Field(description="Grams left, as Spoolman counts them.")
+
+
 class PrinterView(BaseModel):
     """A printer's configuration fused with its live state. Never holds the API key."""
 
@@ -329,6 +339,7 @@ class PrinterView(BaseModel):
     extrude_factor: float | None = Field(description="M221 (flow) as a fraction.")
     z_offset: float | None = Field(description="The Z babystep, mm (SET_GCODE_OFFSET).")
     can_extrude: bool = Field(description="The hotend is above min_extrude_temp.")
+    spool: SpoolOut | None = Field(description="null without [spoolman] or an active spool.")
     actions: dict[str, bool] = Field(description="Which actions are valid in the current state.")
     updated_at: float = Field(description="Unix time of the last message from Moonraker.")
 

@@ -132,6 +132,12 @@ MESSAGES: Final[dict[str, tuple[Level, Category, str, str]]] = {
         "El archivo se laminó para una boquilla de {file} mm, pero esta impresora tiene una "
         "de {ours} mm. Vuelva a laminarlo para {ours} mm o envíelo a una impresora con "
         "boquilla de {file} mm."),
+    "not_enough_filament": ("block", "compatibility",
+        "The file needs {needed} g of filament but the loaded spool has {left} g left. Load "
+        "a fuller spool (and set it active in Spoolman), or send the file to another printer.",
+        "El archivo necesita {needed} g de filamento, pero a la bobina cargada le quedan "
+        "{left} g. Cargue una bobina con más filamento (y márquela activa en Spoolman) o "
+        "envíe el archivo a otra impresora."),
     "filament_mismatch": ("warn", "compatibility",
         "The file was sliced for {file} but {loaded} is loaded. Load {file}, or confirm if "
         "you know this filament prints with that profile.",

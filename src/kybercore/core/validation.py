@@ -36,6 +36,7 @@ from typing import Any, Final
 from kybercore.core.gcode import command_names, first_move_outside, gcode_temperatures
 from kybercore.core.messages import Category, Level, Reason, reason
 from kybercore.core.numbers import finite_number
+from kybercore.core.spools import filament_needed_g
 
 ACTIONS: Final = (
     "start", "pause", "resume", "cancel", "emergency_stop", "firmware_restart", "restart",
@@ -114,6 +115,8 @@ class PrinterFacts:
     """Whether the limits above are all there is to know: ``known`` (from printers.json or
     Klippy's configfile), ``loading`` (being read after a connect) or ``unknown`` (the
     read failed; retried)."""
+    filament_left_g: float | None = None
+    """Grams left on the loaded Spoolman spool; None when no spool is known."""
 
 
 def validate(
@@ -287,6 +290,9 @@ def _file_reasons(printer: PrinterFacts, meta: Mapping[str, Any]) -> list[Reason
     nozzle, ours = finite_number(meta.get("nozzle_diameter")), printer.nozzle_diameter
     if nozzle is not None and ours is not None and abs(nozzle - ours) > _NOZZLE_TOLERANCE:
         reasons.append(reason("nozzle_mismatch", file=nozzle, ours=ours))
+    needed, left = filament_needed_g(meta), printer.filament_left_g
+    if needed is not None and left is not None and needed > left:
+        reasons.append(reason("not_enough_filament", needed=round(needed, 1), left=round(left, 1)))
     types, loaded = filament_types(meta.get("filament_type")), (printer.material or "").strip()
     if types and loaded and loaded.upper() not in types:
         reasons.append(reason("filament_mismatch", file=", ".join(types), loaded=loaded))

@@ -16,6 +16,7 @@ from typing import Any
 
 from kybercore.core.numbers import finite_number
 from kybercore.core.progress import BUSY, PrintMemory, estimate, track
+from kybercore.core.spools import Spool
 from kybercore.core.validation import PrinterFacts, allowed_actions
 from kybercore.moonraker.objects import Status
 from kybercore.registry.models import PrinterConfig
@@ -47,6 +48,8 @@ class LivePrinter:
     """What the view remembers of the print between updates (the fleet keeps it with
     :func:`tracked`); it keeps the progress shown from going backwards."""
     updated_at: float = 0.0
+    spool: Spool | None = None
+    """The active Spoolman spool, when Moonraker has ``[spoolman]`` and one is set."""
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
@@ -143,10 +146,13 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
         if isinstance(minimum, list) and len(minimum) >= 3
         else None,
         nozzle_diameter=caps.get("nozzle_diameter"),
-        material=caps.get("material"),
+        # The spool on the printer says what is loaded better than printers.json.
+        material=(live.spool.material if live.spool and live.spool.material else None)
+        or caps.get("material"),
         max_extruder_temp=caps.get("max_extruder_temp"),
         max_bed_temp=caps.get("max_bed_temp"),
         limits=limits_state(config, live),
+        filament_left_g=live.spool.remaining_g if live.spool else None,
     )
 
 
@@ -217,6 +223,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         extrude_factor=_num(gcode_move.get("extrude_factor"), 2),
         z_offset=_z_offset(gcode_move.get("homing_origin")),
         can_extrude=status.get("extruder", {}).get("can_extrude") is True,
+        spool=live.spool.public() if live.spool else None,
         actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )

@@ -21,6 +21,7 @@ import httpx
 from kybercore.core.view import LivePrinter, View, detect_capabilities, fuse, tracked
 from kybercore.errors import PrinterError, UnknownPrinter
 from kybercore.fleet.hub import Hub
+from kybercore.fleet.spools import SPOOL_SET, load_spool, print_ended
 from kybercore.fleet.temperatures import Temperatures
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.client import MoonrakerClient
@@ -193,11 +194,14 @@ class Sessions:
             apply_status(live.status, event.delta)  # the live state is ours alone
             self.temperatures.feed(pid, live.status, event.delta)
             self._follow_file(printer)
+            if print_ended(event.delta):
+                self._spawn(self._load_spool(printer))
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
             self.temperatures.feed(pid, live.status, live.status)
             self._follow_file(printer)
             self._read_limits(printer)
+            self._spawn(self._load_spool(printer))
         elif isinstance(event, ConnectionChanged):
             live.connection = event.connection
             live.connection_error = event.detail
@@ -218,6 +222,8 @@ class Sessions:
         elif isinstance(event, Notification):
             if event.method == "notify_gcode_response" and event.params:
                 self._hub.console(pid, str(event.params[0]))
+            elif event.method == SPOOL_SET:
+                self._spawn(self._load_spool(printer))
             elif event.method == "notify_filelist_changed":
                 # A nudge for the pages listing this printer's files: they reload the list.
                 self._hub.event({"type": "files", "printer": pid})
@@ -324,6 +330,11 @@ class Sessions:
             printer.limits_tried.set()
             self._hub.mark(pid)
             return
+
+    async def _load_spool(self, printer: FleetPrinter) -> None:
+        client = printer.client
+        if client is not None and await load_spool(client, printer.live):
+            self._hub.mark(printer.config.id)
 
     async def _read_klippy_message(self, printer: FleetPrinter) -> None:
         if printer.client is None:

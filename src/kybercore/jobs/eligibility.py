@@ -72,6 +72,7 @@ def facts_key(facts: PrinterFacts) -> FactsKey:
     return (
         facts.model, facts.build_volume, facts.axis_minimum, facts.nozzle_diameter,
         facts.material, facts.max_extruder_temp, facts.max_bed_temp, facts.limits,
+        facts.filament_left_g,
     )  # fmt: skip
 
 

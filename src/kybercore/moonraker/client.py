@@ -324,6 +324,22 @@ class MoonrakerClient:
         result = await self._channel.request("GET", "/server/webcams/list")
         return self._shapes.objects(self._shapes.field(result, "webcams", what), what)
 
+    async def active_spool_id(self) -> int | None:
+        """The Spoolman spool Moonraker has active (None: none set). Moonraker without
+        ``[spoolman]`` answers 404: :class:`MoonrakerRpcError`."""
+        result = await self._get_object("/server/spoolman/spool_id")
+        spool_id = result.get("spool_id")
+        return spool_id if isinstance(spool_id, int) else None
+
+    async def spoolman_spool(self, spool_id: int) -> dict[str, Any]:
+        """Spoolman's ``GET /api/v1/spool/{id}``, relayed by Moonraker (read only)."""
+        result = await self._channel.request(
+            "POST",
+            "/server/spoolman/proxy",
+            json={"request_method": "GET", "path": f"/v1/spool/{spool_id}"},
+        )
+        return self._shapes.object(result, "POST /server/spoolman/proxy")
+
     async def _get_object(self, path: str, **kwargs: Any) -> dict[str, Any]:
         """``GET path``, whose result must be a JSON object."""
         result = await self._channel.request("GET", path, **kwargs)

@@ -8,6 +8,17 @@ import { t } from "./i18n.js";
 import { can, currentSession } from "./session.js";
 import { serverNow, staleAge, statusOf } from "./store.js";
 
+/** The active Spoolman spool as a badge: its colour, material and grams left. */
+export function showSpool(el, spool) {
+  setHidden(el, !spool);
+  if (!spool) return;
+  const swatch = h("span", { class: "swatch", "aria-hidden": "true" });
+  if (spool.color_hex) swatch.style.background = `#${spool.color_hex}`; // CSSOM: the CSP allows it
+  const left = typeof spool.remaining_g === "number" ? t("spool.left", { g: Math.round(spool.remaining_g) }) : "";
+  el.replaceChildren(swatch, h("span", { text: [spool.material, left].filter(Boolean).join(" · ") }));
+  el.title = `${t("spool.title", { id: spool.id })}: ${spool.name}`;
+}
+
 /** The printer page's address: every name links there. */
 export function pageOf(id) {
   return `#printer/${encodeURIComponent(id)}`;
@@ -156,6 +167,7 @@ export class Tile extends Card {
       conn: h("span", { class: "badge conn" }),
       klippy: h("span", { class: "badge klippy" }),
       limits: h("span", { class: "badge limits", hidden: true }),
+      spool: h("span", { class: "badge spool", hidden: true }),
       tags: h("span", { class: "tags" }),
       thumbImg: h("img", { alt: "", decoding: "async", loading: "lazy" }),
       file: h("p", { class: "file" }),
@@ -184,7 +196,7 @@ export class Tile extends Card {
       "article",
       { class: "tile", dataset: { id: p.id }, "aria-labelledby": nameId },
       h("header", { class: "tile-head" }, r.select, h("div", { class: "tile-title" }, r.name, r.meta), r.pill),
-      h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.tags),
+      h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.spool, r.tags),
       h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.done, r.layer))),
       r.note,
       r.gate.el,
@@ -237,6 +249,7 @@ export class Tile extends Card {
     if (this.changed("tags", (p.tags || []).join("\n"))) {
       r.tags.replaceChildren(...(p.tags || []).map((tag) => h("span", { class: "tag", text: tag })));
     }
+    if (this.changed("spool", `${JSON.stringify(p.spool)}|${t("spool.left", { g: 0 })}`)) showSpool(r.spool, p.spool);
     this.updateJob(p);
     const note = noteOf(p);
     if (this.changed("note", note)) {

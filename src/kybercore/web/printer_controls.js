@@ -3,6 +3,7 @@
 // G-code through the validated G-code route; a button that cannot work now is disabled
 // with the reason next to it (not homed, printing, hotend too cold, printer not ready).
 import { api } from "./api.js";
+import { showSpool } from "./cards.js";
 import { consoleCommand } from "./console.js";
 import { toast } from "./dialogs.js";
 import { h, setHidden, setText } from "./dom.js";
@@ -70,9 +71,11 @@ function extruder(refs) {
   refs.extrude = h("button", { type: "button", class: "btn small", onclick: () => move(1) }, t("pp.extrude"));
   refs.retract = h("button", { type: "button", class: "btn small", onclick: () => move(-1) }, t("pp.retract"));
   refs.extrudeHint = h("p", { class: "pp-hint", role: "note" });
+  refs.spool = h("span", { class: "badge spool", hidden: true });
   return card(
     "pp-extruder",
     t("pp.extruder"),
+    refs.spool,
     h("div", { class: "pp-row" }, h("label", { class: "pp-field" }, h("span", { text: t("pp.length") }), refs.length), h("label", { class: "pp-field" }, h("span", { text: t("pp.speed_mms") }), refs.speed)),
     h("div", { class: "pp-row" }, refs.retract, refs.extrude),
     refs.extrudeHint,
@@ -180,6 +183,7 @@ export function updateControls(refs, p) {
   else if (busy) moveHint = t("pp.hint.printing");
   else if (missing.length) moveHint = t("pp.hint.not_homed", { axes: missing.join(" ") });
   setText(refs.moveHint, moveHint);
+  showSpool(refs.spool, p.spool);
   const canExtrude = ready && !busy && p.can_extrude;
   refs.extrude.disabled = refs.retract.disabled = !operator || !canExtrude;
   setText(refs.extrudeHint, !ready ? t("pp.hint.offline") : busy ? t("pp.hint.printing") : p.can_extrude ? "" : t("pp.hint.cold"));

@@ -5,19 +5,26 @@
 import { api } from "./api.js";
 import { setText } from "./dom.js";
 import { t } from "./i18n.js";
+import { subscribe } from "./store.js";
 
 const EVERY_MS = 60000;
 let el = null;
 let value = null; // 0..1, or null before the first answer (or with no timeline today)
 let timer = null;
 
-/** Show the figure in `element` and keep it fresh. */
+/** Show the figure in `element` and keep it fresh, from the first live snapshot on (the
+ * page may be waiting for a login before that). */
 export function initUtilisation(element) {
   el = element;
-  document.addEventListener("visibilitychange", () => {
-    if (!document.hidden) refresh();
+  let live = false;
+  subscribe((change) => {
+    if (!change.full) return;
+    live = true;
+    refresh();
   });
-  refresh();
+  document.addEventListener("visibilitychange", () => {
+    if (live && !document.hidden) refresh();
+  });
 }
 
 /** Redraw in the current language. */
