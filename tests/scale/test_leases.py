@@ -1,0 +1,143 @@
+"""Slot ownership by leases on a real nats-server: an even split, takeover when a worker
+dies, rebalancing when one joins, self-fencing when one stalls, recovery after the broker
+restarts, and, replayed from every worker's own/drop log, never two owners at once."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+
+import pytest
+from nats.aio.client import Client
+
+from kybercore.scale.broker import LocalServer, connect
+from kybercore.scale.leases import FENCE_AT, Leases
+
+SLOTS = 16
+TTL = 3.0
+# Takeover is due TTL + TTL/3 after a worker's last renewal (~4 s): 5× slack.
+TAKEOVER_BOUND = 5 * (TTL + TTL / 3)
+
+Start = Callable[[str], Awaitable[Leases]]
+
+
+@pytest.fixture
+async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Start]:
+    started: list[tuple[Leases, Client]] = []
+
+    async def start(name: str) -> Leases:
+        nc = await connect(nats_server.url, name)
+        leases = Leases(nc, name, slots=SLOTS, ttl=TTL, log_path=tmp_path / f"{name}.log")
+        await leases.start()
+        started.append((leases, nc))
+        return leases
+
+    yield start
+    for leases, nc in started:
+        async with asyncio.timeout(15):  # a broker gone for good must not hang the suite
+            await leases.stop(release=False)
+            await nc.close()
+
+
+async def until(what: str, predicate: Callable[[], bool], timeout: float = TAKEOVER_BOUND) -> float:
+    """Wait for ``predicate``; the seconds it took."""
+    began = time.monotonic()
+    while not predicate():
+        if time.monotonic() - began > timeout:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        await asyncio.sleep(0.05)  # poll the in-process state, deadline above
+    return time.monotonic() - began
+
+
+def no_overlap(logs: list[Path]) -> None:
+    """Replay own/drop logs: per slot, no two workers' intervals overlap."""
+    intervals: dict[int, list[tuple[float, float, str]]] = {}
+    for path in logs:
+        opened: dict[int, float] = {}
+        for line in path.read_text().splitlines() if path.exists() else []:
+            event = json.loads(line)
+            if event["ev"] == "own":
+                opened[event["slot"]] = event["t"]
+            else:
+                start = opened.pop(event["slot"])
+                intervals.setdefault(event["slot"], []).append((start, event["t"], event["worker"]))
+        for slot, start in opened.items():
+            intervals.setdefault(slot, []).append((start, float("inf"), path.stem))
+    for slot, spans in intervals.items():
+        spans.sort()
+        for (_, end, who), (start, _, other) in itertools.pairwise(spans):
+            overlap = f"slot {slot}: {who} until {end}, {other} from {start}"
+            assert who == other or end <= start, overlap
+
+
+async def test_two_workers_split_evenly_and_a_third_rebalances(
+    workers: Start, tmp_path: Path
+) -> None:
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    w2 = await workers("w2")
+    took = await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    print(f"rebalanced to 8/8 in {took:.1f} s")
+    w3 = await workers("w3")
+    # Shares are rounded up (ceil(16/3) = 6): the newcomer gets what the others release.
+    await until(
+        "three owners, none above its share",
+        lambda: min(len(w.owned()) for w in (w1, w2, w3)) >= SLOTS - 2 * 6
+        and max(len(w.owned()) for w in (w1, w2, w3)) <= 6,
+    )
+    assert set(w1.owned()) | set(w2.owned()) | set(w3.owned()) == set(range(SLOTS))
+    for w in (w1, w2, w3):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_dead_workers_slots_are_taken_over(workers: Start, tmp_path: Path) -> None:
+    w1, w2 = await workers("w1"), await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    lost = set(w1.owned())
+    await w1.stop(release=False)  # as a kill: its keys stay until they expire
+    took = await until("w2 owns every slot", lambda: len(w2.owned()) == SLOTS)
+    print(f"takeover in {took:.1f} s (TTL {TTL:g} s)")
+    assert lost <= set(w2.owned())
+    await w2.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_stalled_worker_fences_itself_before_anyone_takes_over(
+    workers: Start, tmp_path: Path
+) -> None:
+    w1, w2 = await workers("w1"), await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    stalled = set(w1.owned())
+    assert w1._task is not None
+    w1._task.cancel()  # a paused process: no renewals, the slots still held
+    began = time.monotonic()
+    await until("w1 fenced", lambda: not w1.owned(), timeout=5 * FENCE_AT * TTL)
+    assert time.monotonic() - began <= FENCE_AT * TTL + TTL / 3 + 1
+    await until("w2 took w1's slots", lambda: stalled <= set(w2.owned()))
+    for w in (w1, w2):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_ownership_comes_back_after_the_broker_restarts(
+    workers: Start, nats_server: LocalServer, tmp_path: Path
+) -> None:
+    w1, w2 = await workers("w1"), await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    port = nats_server.port
+    nats_server.stop()
+    await until("everything fenced", lambda: not w1.owned() and not w2.owned())
+    nats_server.start(port=port)  # same port and data: clients reconnect by themselves
+    await until(
+        "every slot owned again",
+        lambda: set(w1.owned()) | set(w2.owned()) == set(range(SLOTS)),
+        timeout=5 * (TTL + 5),
+    )
+    for w in (w1, w2):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))
