@@ -79,6 +79,7 @@ FORBIDDEN: Final[dict[str, tuple[str, ...]]] = {
     "jobs": ("fastapi", "starlette", "typer", "uvicorn", "http"),
     "ledger": ("fastapi", "starlette", "typer", "uvicorn", "http"),
     "notify": ("fastapi", "starlette", "typer", "uvicorn", "http"),
+    "scale": ("fastapi", "starlette", "typer", "uvicorn", "http"),
 }  # fmt: skip
 
 # Modules that decide without doing: the notifications' pure logic, driven by the service
