@@ -120,6 +120,8 @@ def test_the_page_in_spanish_and_on_a_phone(
     expect(section.get_by_role("button", name="PARK")).to_be_visible()  # macros loaded
     # No stray "null" where the header has nothing to say (no print to finish).
     expect(wide.locator("#counts")).not_to_contain_text("null")
+    webcam = section.locator("#printer-webcam img")
+    wait_until(lambda: webcam.evaluate("i => i.naturalWidth") > 0, what="the webcam's picture")
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     wide.screenshot(path=str(ARTIFACTS / "printer_page.png"), full_page=True)
 
