@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from kybercore.api.auth import TokenStore, tokens_path_for
@@ -42,3 +43,13 @@ def edge_server(tmp_path: Path) -> Iterator[StartEdge]:
     yield start
     for server in started:
         server.stop()
+
+
+def add_printer(server: KyberCoreServer, printer_id: str, url: str) -> None:
+    """Add a printer through the API (without the connection test), named after its id."""
+    added = httpx.post(
+        f"{server.url}/api/printers",
+        json={"id": printer_id, "name": printer_id.title(), "moonraker_url": url},
+        timeout=30,
+    )
+    assert added.status_code == 201, added.text

@@ -10,7 +10,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import httpx
 import pytest
 
-from tests.api.conftest import StartEdge
+from tests.api.conftest import StartEdge, add_printer
 from tests.helpers import KyberCoreServer
 
 pytestmark = pytest.mark.integration
@@ -70,12 +70,7 @@ def test_a_host_without_a_web_interface_gets_no_link(kybercore_server: KyberCore
 
 def test_a_host_serving_mainsail_gets_its_link(edge_server: StartEdge, fake_mainsail: str) -> None:
     server, _ = edge_server()
-    added = httpx.post(
-        f"{server.url}/api/printers",
-        json={"id": "voron", "name": "Voron", "moonraker_url": f"http://{FAKE_HOST}:7125"},
-        timeout=30,
-    )
-    assert added.status_code == 201, added.text
+    add_printer(server, "voron", f"http://{FAKE_HOST}:7125")
     answer = httpx.get(f"{server.url}/api/printers/voron/web_ui", timeout=30)
     assert answer.status_code == 200, answer.text
     assert answer.json() == {"kind": "mainsail", "url": fake_mainsail}

@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from kybercore.sim.stack import PrinterStack
-from tests.api.conftest import StartEdge
+from tests.api.conftest import StartEdge, add_printer
 from tests.fake_spoolman import FakeSpoolman, printer_with_spoolman, spool
 from tests.web.support import SAMPLE, wait_until
 
@@ -60,12 +60,7 @@ def test_the_spool_is_shown_and_too_little_filament_refuses_a_start(
 ) -> None:
     set_active(spool_printer, NEARLY_EMPTY)
     server, _ = edge_server()
-    added = httpx.post(
-        f"{server.url}/api/printers",
-        json={"id": "spools", "name": "Spools", "moonraker_url": spool_printer.url},
-        timeout=30,
-    )
-    assert added.status_code == 201, added.text
+    add_printer(server, "spools", spool_printer.url)
     wait_until(lambda: view(server.url)["spool"] is not None, timeout=30, what="the spool")
     assert view(server.url)["spool"] == {
         "id": NEARLY_EMPTY, "name": "Acme Basic PLA", "material": "PLA",

@@ -7,7 +7,7 @@ import httpx
 import pytest
 
 from kybercore.sim.stack import PrinterStack
-from tests.api.conftest import StartEdge
+from tests.api.conftest import StartEdge, add_printer
 from tests.helpers import KyberCoreServer
 
 pytestmark = pytest.mark.integration
@@ -60,12 +60,7 @@ def test_a_dead_camera_and_an_offline_printer_are_clear_errors(
     edge_server: StartEdge, own_printer: PrinterStack
 ) -> None:
     server, _ = edge_server()
-    added = httpx.post(
-        f"{server.url}/api/printers",
-        json={"id": "cam", "name": "Cam", "moonraker_url": own_printer.url},
-        timeout=30,
-    )
-    assert added.status_code == 201, added.text
+    add_printer(server, "cam", own_printer.url)
     server.wait_online(1, timeout=60)
     own_printer.stop_webcam()
     snap = httpx.get(f"{server.url}/api/printers/cam/webcams/kybercam/snapshot", timeout=30)
