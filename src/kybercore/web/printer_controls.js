@@ -23,7 +23,8 @@ export function buildControls(id) {
   return refs;
 }
 
-function card(key, title, ...body) {
+/** A panel of the printer page: a section named by its heading. */
+export function card(key, title, ...body) {
   return h("section", { class: "pp-card", id: key, "aria-labelledby": `${key}-title` }, h("h2", { id: `${key}-title`, text: title }), ...body);
 }
 

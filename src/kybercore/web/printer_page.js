@@ -10,7 +10,7 @@ import { closeDrawer } from "./drawer.js";
 import { hideFiles, showFiles } from "./files.js";
 import * as fmt from "./format.js";
 import { onLangChange, t } from "./i18n.js";
-import { buildControls, updateControls } from "./printer_controls.js";
+import { buildControls, card, updateControls } from "./printer_controls.js";
 import { can } from "./session.js";
 import { printers, statusOf, subscribe } from "./store.js";
 import { hideTemperatures, showTemperatures } from "./temps.js";
@@ -62,19 +62,21 @@ function init(el) {
 
 function leave() {
   if (!shownId) return;
-  stopWebcam();
-  hideTemperatures();
-  hideConsole();
-  hideFiles();
+  release();
   els = null;
   document.title = "KyberCore";
 }
 
-function build(id) {
+/** Hand back the shared panels (graph, console, files, webcam) the page had taken. */
+function release() {
   stopWebcam();
   hideTemperatures();
   hideConsole();
   hideFiles();
+}
+
+function build(id) {
+  release();
   const p = printers.get(id);
   const back = h("a", { href: "#", class: "btn ghost pp-back" }, h("span", { "aria-hidden": "true", text: "← " }), t("pp.back"));
   if (!p) {
@@ -99,7 +101,9 @@ function build(id) {
   const heaters = h("tbody");
   const consolePanel = h("div", { class: "pp-console" });
   const filesPanel = h("div", { class: "pp-files" });
-  const webcam = h("section", { id: "printer-webcam", class: "pp-card pp-webcam", "aria-labelledby": "pp-webcam-title", hidden: true }, h("h2", { id: "pp-webcam-title", text: t("pp.webcam") }));
+  const webcam = card("printer-webcam", t("pp.webcam"));
+  webcam.classList.add("pp-webcam");
+  webcam.hidden = true; // shown by renderWebcam when the printer has a webcam
   const controls = buildControls(id);
   els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam };
   for (const [view, , label] of HEATERS) heaters.append(heaterRow(id, view, label));
@@ -124,10 +128,6 @@ function build(id) {
   findWebUi(id, webUi);
   title.tabIndex = -1;
   title.focus();
-}
-
-function card(id, title, ...body) {
-  return h("section", { class: "pp-card", id, "aria-labelledby": `${id}-title` }, h("h2", { id: `${id}-title`, text: title }), ...body);
 }
 
 /** One heater: now, target, power, and a field to set a new target. */
