@@ -9,6 +9,7 @@ import pytest
 from kybercore.sim.stack import PrinterStack
 from tests.api.conftest import StartEdge, add_printer
 from tests.helpers import KyberCoreServer
+from tests.web.support import wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -67,8 +68,14 @@ def test_a_dead_camera_and_an_offline_printer_are_clear_errors(
     assert snap.status_code == 503, snap.text
     assert "gave no JPEG snapshot" in snap.json()["error"]["message"]
     own_printer.stop_moonraker()
+    # Once KyberCore knows the printer is gone (the webcam list is reused for a few seconds).
+    wait_until(lambda: connection(server.url, "cam") != "online", what="cam offline")
     listed = httpx.get(f"{server.url}/api/printers/cam/webcams", timeout=30)
     assert listed.status_code in (409, 503), listed.text
+
+
+def connection(server_url: str, printer_id: str) -> object:
+    return httpx.get(f"{server_url}/api/printers/{printer_id}", timeout=30).json()["connection"]
 
 
 def test_webcams_need_a_login_when_tokens_are_on(edge_server: StartEdge) -> None:

@@ -1,5 +1,5 @@
 """``cancel_and_wait``: it waits for the task it cancels, and never eats its caller's own
-cancellation."""
+cancellation. ``Remembered``: one lookup per key in flight, answers kept, failures not."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import asyncio
 
 import pytest
 
-from kybercore.aio import cancel_and_wait
+from kybercore.aio import Remembered, cancel_and_wait
 
 
 async def slow_to_stop(stopping: asyncio.Event, release: asyncio.Event) -> None:
@@ -63,3 +63,36 @@ async def test_none_and_finished_tasks_are_fine() -> None:
     task = asyncio.create_task(asyncio.sleep(0))
     await task
     await cancel_and_wait(task)
+
+
+async def test_remembered_asks_once_for_many_callers_and_retries_a_failure() -> None:
+    calls: list[str] = []
+    release = asyncio.Event()
+
+    async def look_up() -> str:
+        calls.append("ask")
+        await release.wait()
+        if len(calls) == 1:
+            raise OSError("down")
+        return "answer"
+
+    known: Remembered[str, str] = Remembered(60)
+    waiting = [asyncio.ensure_future(known.get("host", look_up)) for _ in range(3)]
+    release.set()
+    outcomes = await asyncio.gather(*waiting, return_exceptions=True)
+    assert calls == ["ask"]  # one lookup for three callers
+    assert all(isinstance(o, OSError) for o in outcomes)
+    assert await known.get("host", look_up) == "answer"  # the failure was not kept
+    assert await known.get("host", look_up) == "answer"
+    assert calls == ["ask", "ask"]  # the answer was
+
+
+async def test_remembered_forgets_after_its_time() -> None:
+    answers = iter(["old", "new"])
+
+    async def look_up() -> str:
+        return next(answers)
+
+    known: Remembered[str, str] = Remembered(0)
+    assert await known.get("k", look_up) == "old"
+    assert await known.get("k", look_up) == "new"

@@ -7,14 +7,14 @@ host, remembered for a while: a printer page opened a hundred times asks once.
 
 from __future__ import annotations
 
-import asyncio
 import re
-import time
 from dataclasses import dataclass
 from typing import Final, Literal
 from urllib.parse import urlsplit, urlunsplit
 
 import httpx
+
+from kybercore.aio import Remembered
 
 WebUiKind = Literal["mainsail", "fluidd"]
 
@@ -56,19 +56,12 @@ class WebUiFinder:
 
     def __init__(self, http: httpx.AsyncClient) -> None:
         self._http = http
-        self._known: dict[str, tuple[float, WebUi | None]] = {}
-        self._lock = asyncio.Lock()
+        self._known: Remembered[str, WebUi | None] = Remembered(_REMEMBER_SECONDS)
 
     async def find(self, moonraker_url: str) -> WebUi | None:
         """The interface on ``moonraker_url``'s host, or ``None`` (also when unreachable)."""
         root = root_of(moonraker_url)
-        async with self._lock:  # concurrent page loads: one probe per host
-            known = self._known.get(root)
-            if known and time.monotonic() - known[0] < _REMEMBER_SECONDS:
-                return known[1]
-            found = await self._probe(root)
-            self._known[root] = (time.monotonic(), found)
-            return found
+        return await self._known.get(root, lambda: self._probe(root))
 
     async def _probe(self, root: str) -> WebUi | None:
         try:

@@ -16,6 +16,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 import httpx
 
+from kybercore.aio import Remembered
 from kybercore.errors import ActionRejected, FileNotFound, PrinterUnreachable, shorten
 from kybercore.moonraker.client import MoonrakerClient
 
@@ -25,6 +26,8 @@ MAX_SNAPSHOT: Final = 5 * 1024 * 1024
 """Bytes: a webcam's JPEG is tens or hundreds of kB; more is not a snapshot."""
 JPEG_MAGIC: Final = b"\xff\xd8\xff"
 _HTTP: Final = ("http", "https")
+_LIST_SECONDS: Final = 5.0
+"""How long a printer's webcam list is reused (a webcam added shows within this)."""
 # A stream sends a frame every second or so; a camera silent for 30 s is gone.
 _STREAM_TIMEOUT: Final = httpx.Timeout(10.0, read=30.0)
 
@@ -138,10 +141,14 @@ class WebcamProxy:
         self._http = http
         self._max_streams = max_streams
         self._streams: dict[str, int] = {}
+        # The camera wall asks for a snapshot every few hundred ms: the list each one needs
+        # comes from Moonraker at most every few seconds, not once per picture.
+        self._lists: Remembered[str, list[dict[str, Any]]] = Remembered(_LIST_SECONDS)
 
     async def cameras(self, client: MoonrakerClient, printer_url: str) -> list[Webcam]:
-        """The printer's enabled webcams."""
-        return [c for c in webcams_of(printer_url, await client.webcams_list()) if c.enabled]
+        """The printer's enabled webcams (Moonraker's list, a few seconds old at most)."""
+        listed = await self._lists.get(printer_url, client.webcams_list)
+        return [c for c in webcams_of(printer_url, listed) if c.enabled]
 
     async def camera(
         self, client: MoonrakerClient, printer_url: str, printer_id: str, name: str
