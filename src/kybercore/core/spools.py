@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Final
 
 from kybercore.core.numbers import finite_number
@@ -17,7 +18,7 @@ from kybercore.core.numbers import finite_number
 _HEX: Final = re.compile(r"^[0-9a-fA-F]{6}$")
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Spool:
     """The spool on a printer: what it is and how much is left."""
 
@@ -28,8 +29,9 @@ class Spool:
     """``RRGGBB``, or "" when Spoolman has none."""
     remaining_g: float | None
 
+    @cached_property
     def public(self) -> dict[str, Any]:
-        """As the API and the browser see it."""
+        """As the API and the browser see it; built once, as fuse() runs on every update."""
         return {
             "id": self.id,
             "name": self.name,

@@ -223,7 +223,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         extrude_factor=_num(gcode_move.get("extrude_factor"), 2),
         z_offset=_z_offset(gcode_move.get("homing_origin")),
         can_extrude=status.get("extruder", {}).get("can_extrude") is True,
-        spool=live.spool.public() if live.spool else None,
+        spool=live.spool.public if live.spool else None,
         actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )
