@@ -33,15 +33,10 @@ from typing import Any, Final
 
 import filelock
 
-from kybercore.errors import ConfigError, InvalidInput, UnknownPrinter
+from kybercore.errors import ConfigError, UnknownPrinter
+from kybercore.registry import changes
 from kybercore.registry.format import backup_path, dump_printers, parse_printers
-from kybercore.registry.models import (
-    PrinterConfig,
-    PrinterCreate,
-    PrinterUpdate,
-    server_of,
-    slugify,
-)
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 
 log = logging.getLogger(__name__)
 
@@ -196,62 +191,17 @@ class PrinterRegistry:
             return printers
 
     def add(self, new: PrinterCreate) -> PrinterConfig:
-        """Add a printer and return it as stored.
-
-        A given id that exists raises InvalidInput; an id derived from the name gets a
-        ``-2``, ``-3``... suffix instead.
-        """
-
-        def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
-            taken = {p.id for p in printers}
-            if new.id is not None and new.id in taken:
-                english = (
-                    f"A printer with id '{new.id}' already exists. Choose another id, or "
-                    "edit the existing printer."
-                )
-                # The dashboard shows reasons in its language; this one has no other source.
-                spanish = (
-                    f"Ya existe una impresora con el id '{new.id}'. Elige otro id o edita "
-                    "la impresora existente."
-                )
-                reason = {"code": "id_taken", "level": "block", "category": "input"}
-                raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
-            printer = new.to_config(new.id or _free_id(slugify(new.name), taken))
-            _refuse_same_server(printer, printers)
-            printers.append(printer)
-            return printer
-
-        return self._mutate(mutate)
+        """Add a printer and return it as stored (rules: :func:`changes.add_printer`)."""
+        return self._mutate(lambda printers: changes.add_printer(printers, new))
 
     def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
-        """Apply ``patch`` to printer ``printer_id`` and return it as stored.
-
-        A stored API key never follows the printer to another server: a patch that moves
-        ``moonraker_url`` to another scheme, host or port must give ``api_key`` again (or
-        null to drop it), else InvalidInput. The key is write-only, so whoever can edit the
-        URL could otherwise have KyberCore send it to a host of their choosing.
-        """
-
-        def mutate(printers: list[PrinterConfig]) -> PrinterConfig:
-            index = _index(printers, printer_id)
-            current, updated = printers[index], patch.apply(printers[index])
-            if (
-                current.api_key is not None
-                and "api_key" not in patch.model_fields_set
-                and server_of(current.moonraker_url) != server_of(updated.moonraker_url)
-            ):
-                raise _key_needed(updated.moonraker_url)
-            # Only a move is judged: a hand-written file sharing a server stays editable.
-            if server_of(current.moonraker_url) != server_of(updated.moonraker_url):
-                _refuse_same_server(updated, printers)
-            printers[index] = updated
-            return updated
-
-        return self._mutate(mutate)
+        """Apply ``patch`` to printer ``printer_id`` and return it as stored (rules:
+        :func:`changes.update_printer`)."""
+        return self._mutate(lambda printers: changes.update_printer(printers, printer_id, patch))
 
     def remove(self, printer_id: str) -> PrinterConfig:
         """Remove printer ``printer_id`` and return what it was."""
-        return self._mutate(lambda printers: printers.pop(_index(printers, printer_id)))
+        return self._mutate(lambda printers: changes.remove_printer(printers, printer_id))
 
     def _mutate(self, change: Callable[[list[PrinterConfig]], PrinterConfig]) -> PrinterConfig:
         """Read-modify-write under both locks; the in-memory list follows the file."""
@@ -318,59 +268,6 @@ async def _call(callback: Callable[[Any], Awaitable[None] | None], arg: Any) -> 
     result = callback(arg)
     if inspect.isawaitable(result):
         await result
-
-
-def _index(printers: list[PrinterConfig], printer_id: str) -> int:
-    for index, printer in enumerate(printers):
-        if printer.id == printer_id:
-            return index
-    raise UnknownPrinter(printer_id)
-
-
-def _refuse_same_server(printer: PrinterConfig, printers: list[PrinterConfig]) -> None:
-    """One Moonraker drives one printer: a second entry for the same server would show the
-    same machine twice and let the queue send it two jobs at once."""
-    server = server_of(printer.moonraker_url)
-    other = next(
-        (p for p in printers if p.id != printer.id and server_of(p.moonraker_url) == server),
-        None,
-    )
-    if other is None:
-        return
-    english = (
-        f"Printer '{other.name}' ({other.id}) already uses {printer.moonraker_url}. One "
-        "Moonraker drives one printer: check the address, or edit the existing printer."
-    )
-    spanish = (
-        f"La impresora '{other.name}' ({other.id}) ya usa {printer.moonraker_url}. Un "
-        "Moonraker controla una sola impresora: revisa la dirección o edita la existente."
-    )
-    reason = {"code": "url_taken", "level": "block", "category": "input", "field": "moonraker_url"}
-    raise InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
-
-
-def _key_needed(url: str) -> InvalidInput:
-    english = (
-        f"The printer moves to another server ({url}): give its Moonraker API key again "
-        "(api_key, or --api-key), or remove the stored key (api_key: null, or "
-        "--clear-api-key). A stored key is never sent to a new host."
-    )
-    spanish = (
-        f"La impresora pasa a otro servidor ({url}): indica de nuevo su clave de API de "
-        "Moonraker (api_key o --api-key) o borra la guardada (api_key: null o "
-        "--clear-api-key). Una clave guardada nunca se envía a otro host."
-    )
-    reason = {"code": "api_key_needed", "level": "block", "category": "input"}
-    return InvalidInput(english, reasons=[{**reason, "en": english, "es": spanish}])
-
-
-def _free_id(base: str, taken: set[str]) -> str:
-    candidate, n = base, 1
-    while candidate in taken:
-        n += 1
-        suffix = f"-{n}"
-        candidate = base[: 64 - len(suffix)] + suffix
-    return candidate
 
 
 def _remove_stale_temp_files(path: Path) -> None:
