@@ -55,9 +55,13 @@ def travel_gcode(moves: int = 40, feedrate: int = 1200) -> bytes:
 
 
 class KyberCoreServer:
-    """A `kybercore serve` subprocess on loopback, stoppable and restartable by tests."""
+    """A `kybercore serve` (or ``front``) subprocess on loopback, stoppable and restartable
+    by tests."""
 
-    def __init__(self, printers_file: Path, port: int, *extra_args: str) -> None:
+    def __init__(
+        self, printers_file: Path, port: int, *extra_args: str, command: str = "serve"
+    ) -> None:
+        self.command = command
         self.printers_file = printers_file
         self.extra_args = extra_args
         self.port = port
@@ -69,7 +73,7 @@ class KyberCoreServer:
     def start(self) -> None:
         """Start the server and wait until it answers /api/health."""
         command = [
-            sys.executable, "-m", "kybercore", "serve", "--port", str(self.port),
+            sys.executable, "-m", "kybercore", self.command, "--port", str(self.port),
             "--printers-file", str(self.printers_file), *self.extra_args,
         ]  # fmt: skip
         with self.log.open("ab") as log:
@@ -77,13 +81,13 @@ class KyberCoreServer:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             if self._proc.poll() is not None:
-                raise AssertionError(f"kybercore serve exited:\n{self.log.read_text()[-3000:]}")
+                raise AssertionError(f"kybercore {self.command} exited:\n{self.log.read_text()[-3000:]}")
             try:
                 httpx.get(f"{self.url}/api/session", timeout=1).raise_for_status()
                 return
             except httpx.HTTPError:
                 time.sleep(0.1)  # poll: wait for the server to answer, deadline above
-        raise AssertionError(f"kybercore serve did not answer:\n{self.log.read_text()[-3000:]}")
+        raise AssertionError(f"kybercore {self.command} did not answer:\n{self.log.read_text()[-3000:]}")
 
     @property
     def pid(self) -> int:

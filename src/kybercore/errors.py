@@ -5,7 +5,9 @@
     KyberCoreError                    anything KyberCore raises on purpose
     ├── PrinterError                  one printer could not do what was asked
     │   ├── PrinterUnreachable        network or Moonraker down: retry later
-    │   │   └── PrinterTimeout        it did not answer in time: retry later
+    │   │   ├── PrinterTimeout        it did not answer in time: retry later
+    │   │   │   └── OutcomeUnknown    sent, no answer: check the printer before retrying
+    │   │   └── OwnerMoving           its process is changing (NATS): retry in seconds
     │   ├── PrinterAuthFailed         Moonraker refused the API key: fix credentials
     │   ├── KlippyNotReady            Moonraker is up, Klippy is not: wait
     │   └── MoonrakerRpcError         Moonraker refused this one call
@@ -68,6 +70,20 @@ class PrinterTimeout(PrinterUnreachable):
     """The printer did not answer within the time allowed; retry later."""
 
     code = "printer_timeout"
+
+
+class OwnerMoving(PrinterUnreachable):
+    """No KyberCore process holds the printer right now (a worker died or the printers are
+    being rebalanced): nothing was sent; retry in a few seconds."""
+
+    code = "owner_moving"
+
+
+class OutcomeUnknown(PrinterTimeout):
+    """The request reached the printer's owner but no answer came back: it may have run.
+    Never retried on its own; look at the printer before sending it again."""
+
+    code = "outcome_unknown"
 
 
 class PrinterAuthFailed(PrinterError):
@@ -166,6 +182,16 @@ class LaunchError(KyberCoreError):
     """Something KyberCore starts could not start: a port in use, an install, a process."""
 
     code = "launch_error"
+
+
+def not_on_front(what: str) -> ActionRejected:
+    """The refusal of a KyberCore front (on NATS) for what it does not do yet: ``what``
+    starts the sentence ("Uploading a file", "The job queue")."""
+    return ActionRejected(
+        f"{what} is not available on a KyberCore front yet (the distributed mode): use "
+        "`kybercore serve`, or the printer's own Mainsail or Fluidd, for this.",
+        code="not_on_front",
+    )
 
 
 def shorten(text: str, limit: int = 100) -> str:

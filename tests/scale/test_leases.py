@@ -5,8 +5,6 @@ restarts, and, replayed from every worker's own/drop log, never two owners at on
 from __future__ import annotations
 
 import asyncio
-import itertools
-import json
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
@@ -16,6 +14,7 @@ from nats.aio.client import Client
 
 from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.leases import FENCE_AT, Leases
+from tests.scale.replay import no_overlap
 
 SLOTS = 16
 TTL = 3.0
@@ -53,27 +52,6 @@ async def until(what: str, predicate: Callable[[], bool], timeout: float = TAKEO
     return time.monotonic() - began
 
 
-def no_overlap(logs: list[Path]) -> None:
-    """Replay own/drop logs: per slot, no two workers' intervals overlap."""
-    intervals: dict[int, list[tuple[float, float, str]]] = {}
-    for path in logs:
-        opened: dict[int, float] = {}
-        for line in path.read_text().splitlines() if path.exists() else []:
-            event = json.loads(line)
-            if event["ev"] == "own":
-                opened[event["slot"]] = event["t"]
-            else:
-                start = opened.pop(event["slot"])
-                intervals.setdefault(event["slot"], []).append((start, event["t"], event["worker"]))
-        for slot, start in opened.items():
-            intervals.setdefault(slot, []).append((start, float("inf"), path.stem))
-    for slot, spans in intervals.items():
-        spans.sort()
-        for (_, end, who), (start, _, other) in itertools.pairwise(spans):
-            overlap = f"slot {slot}: {who} until {end}, {other} from {start}"
-            assert who == other or end <= start, overlap
-
-
 async def test_two_workers_split_evenly_and_a_third_rebalances(
     workers: Start, tmp_path: Path
 ) -> None:
@@ -86,8 +64,10 @@ async def test_two_workers_split_evenly_and_a_third_rebalances(
     # Shares are rounded up (ceil(16/3) = 6): the newcomer gets what the others release.
     await until(
         "three owners, none above its share",
-        lambda: min(len(w.owned()) for w in (w1, w2, w3)) >= SLOTS - 2 * 6
-        and max(len(w.owned()) for w in (w1, w2, w3)) <= 6,
+        lambda: (
+            min(len(w.owned()) for w in (w1, w2, w3)) >= SLOTS - 2 * 6
+            and max(len(w.owned()) for w in (w1, w2, w3)) <= 6
+        ),
     )
     assert set(w1.owned()) | set(w2.owned()) | set(w3.owned()) == set(range(SLOTS))
     for w in (w1, w2, w3):

@@ -39,6 +39,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any, Final
 
+import httpx
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, Response
@@ -93,6 +94,10 @@ MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
 """Work to run once the fleet and the queue are up (``kybercore demo`` queues its jobs)."""
+FleetFactory = Callable[[httpx.AsyncClient], FleetService]
+"""Makes the app's fleet instead of a :class:`FleetService` over printers.json: a front
+on NATS passes its own (printers held by workers); the queue, the ledger and the
+notifications then do not run in this process."""
 
 
 def create_app(
@@ -104,13 +109,14 @@ def create_app(
     queue_options: Mapping[str, Any] | None = None,
     notify_options: Mapping[str, Any] | None = None,
     on_started: OnStarted | None = None,
+    fleet_factory: FleetFactory | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
     (plus any IP address) unless told; the queue's database at ``database_url`` (default:
     SQLite beside printers.json); ``queue_options`` go to :class:`QueueService`,
     ``notify_options`` to :class:`NotifyService` and ``service_options`` to
-    :class:`FleetService`."""
+    :class:`FleetService`; ``fleet_factory``: see :data:`FleetFactory`."""
     folder = registry.path.parent
 
     @asynccontextmanager
@@ -119,6 +125,10 @@ def create_app(
         app.state.audit = AuditLog(engine)
         try:
             async with new_http_client() as http:
+                if fleet_factory is not None:
+                    async with _fleet_only(app, fleet_factory(http)):
+                        yield
+                    return
                 service = FleetService(registry, http, **service_options)
                 queue = QueueService(
                     service, JobStore(engine), JobFiles(folder / "files"), **(queue_options or {})
@@ -189,3 +199,13 @@ def create_app(
     if WEB_DIR.is_dir():
         app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
     return app
+
+
+@asynccontextmanager
+async def _fleet_only(app: FastAPI, service: FleetService) -> AsyncIterator[None]:
+    await service.start()
+    app.state.service = service
+    try:
+        yield
+    finally:
+        await service.stop()

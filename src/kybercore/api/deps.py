@@ -13,6 +13,7 @@ from starlette.requests import HTTPConnection
 
 from kybercore.api.auth import Identity
 from kybercore.api.security import require
+from kybercore.errors import not_on_front
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.service import QueueService
 
@@ -33,7 +34,7 @@ Service = Annotated[FleetService, Depends(fleet_service)]
 
 def queue_service(connection: HTTPConnection) -> QueueService:
     """The app's QueueService, started by the lifespan."""
-    queue: QueueService = connection.app.state.queue
+    queue: QueueService = started(connection, "queue", "The job queue")
     return queue
 
 
@@ -43,6 +44,15 @@ Queue = Annotated[QueueService, Depends(queue_service)]
 Operator = Annotated[Identity, OPERATOR]
 """A route parameter: the caller, who must hold the operator role (the queue records who
 did what)."""
+
+
+def started(connection: HTTPConnection, name: str, what: str) -> Any:
+    """The app's ``name`` service; a front on NATS runs only the fleet, so the others
+    answer that ``what`` is not available there (never a 500)."""
+    service = getattr(connection.app.state, name, None)
+    if service is None:
+        raise not_on_front(what)
+    return service
 
 
 class ORJSONResponse(JSONResponse):

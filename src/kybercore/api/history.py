@@ -15,7 +15,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 from starlette.requests import HTTPConnection
 
-from kybercore.api.deps import VIEWER
+from kybercore.api.deps import VIEWER, started
 from kybercore.api.models import ERROR_RESPONSES
 from kybercore.ledger import records, stats
 from kybercore.ledger.service import LedgerService
@@ -27,7 +27,7 @@ CSV_NAME: Final = "kybercore-history.csv"
 
 def ledger_service(connection: HTTPConnection) -> LedgerService:
     """The app's LedgerService, started by the lifespan."""
-    service: LedgerService = connection.app.state.ledger
+    service: LedgerService = started(connection, "ledger", "The job history and statistics")
     return service
 
 

@@ -22,7 +22,7 @@ from fastapi.exceptions import RequestValidationError
 from starlette.requests import HTTPConnection
 
 from kybercore.api.auth import Identity, Role
-from kybercore.api.deps import ADMIN, OPERATOR, VIEWER, Operator
+from kybercore.api.deps import ADMIN, OPERATOR, VIEWER, Operator, started
 from kybercore.api.models import ERROR_RESPONSES
 from kybercore.api.notify_models import (
     KIND_LABELS,
@@ -52,7 +52,7 @@ SECRET_BYTES = 32
 
 def notify_service(connection: HTTPConnection) -> NotifyService:
     """The app's NotifyService, started by the lifespan."""
-    service: NotifyService = connection.app.state.notify
+    service: NotifyService = started(connection, "notify", "Notifications")
     return service
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import typer
 
 from kybercore import __version__
+from kybercore.cli import scale as scale_commands
 from kybercore.cli import serve as serve_commands
 from kybercore.cli.jobs import jobs_app
 from kybercore.cli.notify import notify_app
@@ -28,6 +29,8 @@ app.add_typer(notify_app, name="notify")
 app.add_typer(tokens_app, name="tokens")
 for command in (serve_commands.serve, serve_commands.demo, serve_commands.sim):
     app.command()(command)
+app.command()(scale_commands.ingest)
+app.command()(scale_commands.front)
 
 
 @app.command()

@@ -112,6 +112,15 @@ def demo(
     folder: Annotated[
         Path | None, typer.Option("--dir", help="Where the demo keeps its printers' data.")
     ] = None,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            max=8,
+            help="Run distributed: a local NATS server, this many ingest workers "
+            "and a front (0: one process, as `serve`).",
+        ),
+    ] = 0,
 ) -> None:
     """Start virtual printers (real Klippy + Moonraker on a simulated MCU) and the dashboard."""
     from kybercore.sim.demo import demo_fleet, write_demo_printers
@@ -134,11 +143,17 @@ def demo(
             status.stop()
             _print_fleet(stacks)
             console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
-            console.print(
-                "A few jobs are queued: open the Queue view to watch them dispatch, and clear "
-                "each printer's plate when its print is done."
-            )
+            if not workers:
+                console.print(
+                    "A few jobs are queued: open the Queue view to watch them dispatch, and "
+                    "clear each printer's plate when its print is done."
+                )
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
+            if workers:
+                from kybercore.cli.scale import demo_workers
+
+                demo_workers(workers, host, port, path)
+                return
             _run_server(
                 registry, host, port, access, _allowed_hosts(host, []), on_started=_queue_demo_jobs
             )

@@ -31,6 +31,11 @@ TICK_SECONDS: Final = 0.1
 SLICE_SECONDS: Final = 0.001
 QUEUE_FRAMES: Final = 64
 
+Published = Callable[[dict[str, Any], set[str], list[dict[str, Any]]], None]
+"""Told, once per tick, ``(patches, removed, events)`` as the browsers get them."""
+ConsoleLine = Callable[[str, str], None]
+"""Told ``(printer_id, message)`` for every G-code response."""
+
 
 @dataclass(eq=False)
 class HubClient:
@@ -46,8 +51,19 @@ class HubClient:
 class Hub:
     """Publishes snapshots, coalesced per-printer deltas and events to every client."""
 
-    def __init__(self, render: Callable[[str], View | None], tick: float = TICK_SECONDS) -> None:
+    def __init__(
+        self,
+        render: Callable[[str], View | None],
+        tick: float = TICK_SECONDS,
+        *,
+        on_publish: Published | None = None,
+        on_console: ConsoleLine | None = None,
+    ) -> None:
+        """``on_publish`` and ``on_console`` hear what the browsers get (an ingest worker
+        publishes it to NATS instead of to browsers of its own)."""
         self._renderer = render
+        self._on_publish = on_publish
+        self._on_console = on_console
         self._tick = tick
         self._views: dict[str, View] = {}
         self._dirty: dict[str, None] = {}
@@ -77,6 +93,8 @@ class Hub:
 
     def console(self, printer_id: str, message: str) -> None:
         """Send a G-code response to the clients that watch this printer's console."""
+        if self._on_console is not None:
+            self._on_console(printer_id, message)
         frame = _encode({"type": "gcode_response", "printer": printer_id, "message": message})
         for client in self._clients.values():
             if printer_id in client.console:
@@ -209,6 +227,8 @@ class Hub:
     def _publish(self) -> None:
         """Queue the unsent patches as one delta frame, then the pending events."""
         frames: list[bytes] = []
+        if self._on_publish is not None and (self._unsent or self._removed or self._events):
+            self._on_publish(self._unsent, self._removed, self._events)
         if self._unsent or self._removed:
             self._seq += 1
             delta = {

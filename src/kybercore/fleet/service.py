@@ -38,7 +38,7 @@ from kybercore.fleet.actions import (
     require_confirmation,
 )
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
-from kybercore.fleet.hub import Hub
+from kybercore.fleet.hub import ConsoleLine, Hub, Published
 from kybercore.fleet.sessions import FleetPrinter, Listener, Sessions
 from kybercore.fleet.web_ui import WebUiFinder
 from kybercore.fleet.webcams import WebcamProxy
@@ -68,15 +68,18 @@ class FleetService:
         advisor: AdvisorConfig | None = None,
         on_settled: Callable[[], None] | None = None,
         mdns_interfaces: Sequence[str] | None = None,
+        on_publish: Published | None = None,
+        on_console: ConsoleLine | None = None,
     ) -> None:
         """``on_settled`` is called once, when every printer is online or disabled after
         :meth:`start` (or after two minutes): ``kybercore serve`` freezes the heap then.
-        ``mdns_interfaces``: the addresses "Find printers" browses on (None: all)."""
+        ``mdns_interfaces``: the addresses "Find printers" browses on (None: all).
+        ``on_publish`` and ``on_console``: see :class:`Hub`."""
         self.registry = registry
         self._http = http
         self._watch_interval = watch_interval
         self._advisor = advisor
-        self.hub = Hub(self._render)
+        self.hub = Hub(self._render, on_publish=on_publish, on_console=on_console)
         self.sessions = Sessions(http, connect, self.hub)
         self._on_settled = on_settled
         self._watcher: asyncio.Task[None] | None = None
@@ -357,4 +360,3 @@ class FleetService:
                     "Upload it first or pick one from the file list."
                 ) from exc
             raise
-

@@ -1,0 +1,182 @@
+"""``kybercore ingest`` and ``kybercore front``: KyberCore across processes on NATS, and
+``kybercore demo --workers N`` to see it in one command.
+
+``kybercore serve`` (one process, no broker) stays the default; these are for a fleet that
+outgrows one process or one machine (see the README's "Scale-out on NATS").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, PrintersFile
+from kybercore.cli.output import console, fail
+from kybercore.errors import KyberCoreError
+
+NatsUrl = Annotated[
+    str,
+    typer.Option(
+        "--nats", envvar="KYBERCORE_NATS", help="The NATS server (nats://host:4222), JetStream on."
+    ),
+]
+Slots = Annotated[
+    int,
+    typer.Option(min=1, max=1024, help="Slots the fleet is split into; the same in every process."),
+]
+LogLevel = Annotated[str, typer.Option(help="debug, info, warning or error.")]
+
+
+def ingest(
+    nats_url: NatsUrl,
+    worker_id: Annotated[
+        str | None, typer.Option(help="This worker's name (default: host name and PID).")
+    ] = None,
+    slots: Slots = 64,
+    lease_ttl: Annotated[
+        float, typer.Option(min=1.0, help="Seconds a lease lasts without renewal.")
+    ] = 6.0,
+    grace: Annotated[
+        float, typer.Option(min=0.0, help="Seconds a lost slot's sessions stay open.")
+    ] = 30.0,
+    folder: Annotated[
+        Path | None, typer.Option("--dir", help="Where the worker writes its leases log.")
+    ] = None,
+    log_level: LogLevel = "info",
+) -> None:
+    """Run an ingest worker: own a share of the printers, hold their Moonraker sessions,
+    publish their views to NATS and run their actions."""
+    from kybercore.sim.runtime import kybercore_home
+
+    name = worker_id or f"{socket.gethostname()}-{os.getpid()}"
+    where = folder or kybercore_home() / "workers" / name
+    _logging(log_level)
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+        asyncio.run(_ingest(nats_url, name, slots, lease_ttl, grace, where))
+    except KyberCoreError as exc:
+        raise fail(exc.message) from None
+    except OSError as exc:
+        raise fail(f"Cannot reach NATS at {nats_url} ({exc}). Start nats-server -js.") from None
+
+
+async def _ingest(url: str, name: str, slots: int, ttl: float, grace: float, folder: Path) -> None:
+    from kybercore.moonraker.http import new_http_client
+    from kybercore.scale.broker import connect
+    from kybercore.scale.worker import Worker
+
+    nc = await connect(url, f"kybercore-ingest-{name}")
+    async with new_http_client() as http:
+        worker = Worker(nc, name, http, slots=slots, ttl=ttl, folder=folder, grace=grace)
+        await worker.start()
+        logging.getLogger(__name__).info("worker %s up on %s", name, url)
+        await _until_signal()
+        await worker.stop()
+    await nc.close()
+
+
+def front(
+    nats_url: NatsUrl,
+    host: Host = "127.0.0.1",
+    port: Port = 8000,
+    printers_file: PrintersFile = None,
+    allowed_host: AllowedHosts = None,
+    database_url: DatabaseUrl = None,
+    slots: Slots = 64,
+    log_level: LogLevel = "info",
+) -> None:
+    """Serve the dashboard and API for a fleet held by ingest workers on NATS (no printer
+    sockets here). printers.json is imported into an empty registry on NATS."""
+    import uvicorn
+
+    from kybercore.api.app import create_app
+    from kybercore.cli.serve import _access, _allowed_hosts, _default_database
+    from kybercore.registry.store import PrinterRegistry, default_printers_path
+    from kybercore.scale.front import FrontFleet
+    from kybercore.sim.stack import ensure_port_free
+
+    path = printers_file or default_printers_path()
+    try:
+        ensure_port_free(port, host)
+        hosts = _allowed_hosts(host, allowed_host or [])
+        access = _access(path, host)
+    except KyberCoreError as exc:
+        raise fail(exc.message) from None
+    _logging(log_level)
+    app = create_app(
+        PrinterRegistry(path),
+        access,
+        allowed_hosts=hosts,
+        database_url=database_url or _default_database(path),
+        fleet_factory=lambda http: FrontFleet(nats_url, http, slots=slots, printers_file=path),
+    )
+    uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets-sansio")
+
+
+def demo_workers(workers: int, host: str, port: int, printers_file: Path) -> None:
+    """The demo's distributed form: a local nats-server, ``workers`` ingest workers (child
+    processes) and a front in this process, over the demo's printers.json."""
+    from kybercore.scale.broker import LocalServer
+
+    # Each demo starts from its printers.json: the last run's registry and leases go.
+    shutil.rmtree(printers_file.parent / "nats", ignore_errors=True)
+    broker = LocalServer(printers_file.parent / "nats")
+    broker.start()
+    console.print(f"NATS (JetStream) at {broker.url}; {workers} ingest workers.")
+    try:
+        with _workers(broker.url, workers, printers_file.parent):
+            front(broker.url, host, port, printers_file, None, None, 64, "warning")
+    finally:
+        broker.stop()
+
+
+@contextlib.contextmanager
+def _workers(url: str, count: int, folder: Path) -> Iterator[None]:
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable, "-m", "kybercore", "ingest", "--nats", url,
+                "--worker-id", f"w{n}", "--dir", str(folder / "workers" / f"w{n}"),
+                "--log-level", "warning",
+            ]
+        )
+        for n in range(1, count + 1)
+    ]  # fmt: skip
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+async def _until_signal() -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+
+
+def _logging(level: str) -> None:
+    logging.basicConfig(
+        level=level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    logging.getLogger("httpx").setLevel(logging.WARNING)

@@ -1,0 +1,190 @@
+"""Actions across processes: a front asks a printer's owner on ``kc.cmd.<printer id>``.
+
+The exchange, and what each way it can end means:
+
+1. The front publishes the command with a unique id, the slot epoch it knows
+   (``KC-Epoch``) and the time it stops waiting for an acknowledgement.
+2. NATS answers "no responders" when no worker holds the printer (one died, or slots are
+   moving): nothing was sent to the printer, so the front answers 503 "owner moving" at once.
+3. The owner checks it may act (its lease is fresh, the epoch is not newer than its own,
+   the front still waits, the id is new) and acknowledges; or refuses with "owner moving".
+4. It runs the command on its :class:`FleetService` and answers with the outcome or the
+   error, exactly as ``kybercore serve`` would have.
+
+No acknowledgement, or no outcome in time, means the outcome is unknown (504): the command
+may have run. It is never retried on its own: a start, a G-code or an e-stop sent twice
+can do harm.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable, Mapping
+from typing import Any, Final
+
+from nats.aio.client import Client
+from nats.aio.msg import Msg
+
+from kybercore.errors import KyberCoreError, OutcomeUnknown, OwnerMoving
+from kybercore.fleet.service import FleetService
+from kybercore.scale.wire import (
+    EPOCH_HEADER,
+    command_subject,
+    decode_error,
+    dumps,
+    encode_error,
+    encode_outcome,
+    encode_verdict,
+    loads,
+)
+
+log = logging.getLogger(__name__)
+
+ACK_SECONDS: Final = 5.0
+"""How long a front waits for the owner to take a command (it takes it at once: longer
+means the owner is paused or cut off)."""
+ANSWER_SECONDS: Final = 660.0
+"""How long a taken command may run: a G-code that heats waits up to Moonraker's limit."""
+REMEMBERED_IDS: Final = 4096
+
+
+def _moving(printer_id: str) -> OwnerMoving:
+    return OwnerMoving(
+        "no KyberCore worker holds this printer right now (one stopped, or printers are being "
+        "shared out again). Nothing was sent to it; retry in a few seconds.",
+        printer=printer_id,
+    )
+
+
+def _unknown(printer_id: str, what: str) -> OutcomeUnknown:
+    return OutcomeUnknown(
+        f"the printer's KyberCore worker {what}, so whether the command ran is unknown. "
+        "Check the printer (its console and state) before sending it again.",
+        printer=printer_id,
+    )
+
+
+async def send_command(
+    nc: Client,
+    printer_id: str,
+    op: str,
+    args: Mapping[str, Any],
+    *,
+    epoch: int = 0,
+    answer_timeout: float = ANSWER_SECONDS,
+) -> Any:
+    """Run ``op`` on the printer's owner; its result, or the error it raised (OwnerMoving
+    when nobody holds the printer, OutcomeUnknown when the owner went silent)."""
+    inbox = nc.new_inbox()
+    sub = await nc.subscribe(inbox, max_msgs=2)
+    try:
+        request = {
+            "id": uuid.uuid4().hex, "op": op, "args": dict(args),
+            "deadline": time.time() + ACK_SECONDS,
+        }  # fmt: skip
+        headers = {EPOCH_HEADER: str(epoch)}
+        await nc.publish(command_subject(printer_id), dumps(request), reply=inbox, headers=headers)
+        try:
+            ack = await sub.next_msg(timeout=ACK_SECONDS)
+        except TimeoutError:
+            raise _unknown(printer_id, f"did not take it within {ACK_SECONDS:.0f} s") from None
+        if ack.headers and ack.headers.get("Status") == "503":
+            raise _moving(printer_id)
+        body = loads(ack.data)
+        if "ack" not in body:
+            return _result(body)
+        try:
+            answer = await sub.next_msg(timeout=answer_timeout)
+        except TimeoutError:
+            waited = f"took it but did not answer in {answer_timeout:.0f} s"
+            raise _unknown(printer_id, waited) from None
+        return _result(loads(answer.data))
+    finally:
+        await sub.unsubscribe()
+
+
+def _result(body: dict[str, Any]) -> Any:
+    if "error" in body:
+        raise decode_error(body["error"])
+    return body["ok"]
+
+
+class CommandRunner:
+    """A worker's side: takes commands for the printers it owns and runs them."""
+
+    def __init__(self, service: FleetService, epoch_of: Callable[[str], int | None]) -> None:
+        """``epoch_of(printer_id)``: the printer's slot epoch while this worker may act for
+        it (the lease is fresh), else None."""
+        self._service = service
+        self._epoch_of = epoch_of
+        self._seen: OrderedDict[str, None] = OrderedDict()
+        self._running: set[asyncio.Task[None]] = set()
+
+    async def stop(self) -> None:
+        """Cancel the commands still running."""
+        for task in list(self._running):
+            task.cancel()
+        await asyncio.gather(*self._running, return_exceptions=True)
+
+    async def on_message(self, msg: Msg) -> None:
+        """A command arrived: refuse it, or acknowledge it and run it in the background
+        (one printer's long G-code must not hold up the next command)."""
+        printer_id = msg.subject.split(".", 2)[2]
+        request = loads(msg.data)
+        epoch = self._epoch_of(printer_id)
+        known = int((msg.headers or {}).get(EPOCH_HEADER, "0") or 0)
+        if epoch is None or known > epoch:
+            await msg.respond(dumps({"error": encode_error(_moving(printer_id))}))
+            return
+        if time.time() > float(request["deadline"]) or request["id"] in self._seen:
+            # The front stopped waiting (it reported "unknown"), or this is a copy: running
+            # it now would surprise whoever sent it.
+            log.warning("%s: command %s refused (late or repeated)", printer_id, request["id"])
+            return
+        self._seen[request["id"]] = None
+        while len(self._seen) > REMEMBERED_IDS:
+            self._seen.popitem(last=False)
+        await msg.respond(dumps({"ack": True}))
+        task = asyncio.create_task(self._run(msg, printer_id, request))
+        self._running.add(task)
+        task.add_done_callback(self._running.discard)
+
+    async def _run(self, msg: Msg, printer_id: str, request: dict[str, Any]) -> None:
+        try:
+            result = await self._call(printer_id, request["op"], request["args"])
+            body: dict[str, Any] = {"ok": result}
+        except KyberCoreError as exc:
+            body = {"error": encode_error(exc)}
+        except Exception as exc:
+            log.exception("%s: command %s failed", printer_id, request["op"])
+            error = KyberCoreError(f"{printer_id}: the command failed inside KyberCore ({exc}).")
+            body = {"error": encode_error(error)}
+        await msg.respond(dumps(body))
+
+    async def _call(self, printer_id: str, op: str, args: dict[str, Any]) -> Any:
+        service = self._service
+        if op == "act":
+            outcome = await service.act(
+                printer_id, args["action"], args.get("params"),
+                force=bool(args.get("force")), confirm=bool(args.get("confirm")),
+            )  # fmt: skip
+            return encode_outcome(outcome)
+        if op == "dry_run":
+            verdict = await service.dry_run(
+                printer_id, args["action"], args.get("params"), bool(args.get("force"))
+            )
+            return encode_verdict(verdict)
+        if op == "files":
+            return await service.files(printer_id)
+        if op == "file_metadata":
+            return await service.file_metadata(printer_id, args["filename"])
+        if op == "delete_file":
+            await service.delete_file(printer_id, args["path"])
+            return None
+        if op == "console_history":
+            return await service.console_history(printer_id, int(args["count"]))
+        raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")

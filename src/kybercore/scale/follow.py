@@ -1,0 +1,126 @@
+"""A front's copy of the fleet's live views, followed slot by slot from the workers' patches.
+
+Pure bookkeeping, no I/O: the front (:mod:`.front`) feeds it the patch batches and
+snapshots it receives and asks it which slots need a snapshot and which are stale.
+
+Per slot: patches of an older epoch are from an owner that lost the slot (paused, cut
+off): ignored. A newer epoch, or a gap in the sequence, means the copy may have missed
+something: the slot waits for a snapshot (patches arriving meanwhile are kept and applied
+after it, those the snapshot already holds skipped). A slot silent for
+:data:`STALE_SECONDS` (no patch, no heartbeat) is stale: its printers are shown as such.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from kybercore.core.view import View
+from kybercore.moonraker.objects import merge_status
+
+STALE_SECONDS: Final = 2.0
+
+
+@dataclass
+class SlotCopy:
+    """What the front knows of one slot."""
+
+    epoch: int = 0
+    seq: int = 0
+    heard: float = -1e9
+    """monotonic() of the last batch or heartbeat."""
+    synced: bool = False
+    """A snapshot of this epoch was applied, and no gap since."""
+    waiting: list[dict[str, Any]] = field(default_factory=list)
+    """Batches received while waiting for a snapshot."""
+    stale: bool = True
+
+
+Changed = Callable[[str], None]
+"""Told the id of every printer whose view changed."""
+
+
+class FleetCopy:
+    """Every printer's last view as its owner published it, by slot."""
+
+    def __init__(self, slots: int, changed: Changed, event: Callable[[dict[str, Any]], None]):
+        self.slots = [SlotCopy() for _ in range(slots)]
+        self.views: dict[str, View] = {}
+        self._changed = changed
+        self._event = event
+        self.members: dict[int, set[str]] = {}
+        """Printers last seen in each slot (to mark them when the slot goes stale)."""
+
+    def batch(self, slot: int, body: dict[str, Any], now: float) -> bool:
+        """Take a patch batch (or heartbeat); True when the slot needs a snapshot now."""
+        copy = self.slots[slot]
+        epoch, seq = int(body["epoch"]), int(body["seq"])
+        if epoch < copy.epoch:
+            return False
+        copy.heard = now
+        if epoch > copy.epoch:
+            copy.epoch, copy.synced, copy.waiting = epoch, False, [body]
+            return True
+        if not copy.synced:
+            copy.waiting.append(body)
+            return False
+        if seq <= copy.seq:
+            return False  # a heartbeat, or a batch the snapshot held
+        if seq == copy.seq + 1:
+            self._apply(slot, body)
+            return False
+        copy.synced, copy.waiting = False, [body]
+        return True
+
+    def snapshot(self, slot: int, body: dict[str, Any], now: float) -> bool:
+        """Take a slot's snapshot; True when it is still not in step (ask again)."""
+        copy = self.slots[slot]
+        epoch = int(body["epoch"])
+        if epoch < copy.epoch:
+            return True
+        copy.epoch, copy.seq, copy.synced, copy.heard = epoch, int(body["seq"]), True, now
+        for printer_id, view in body["views"].items():
+            self.views[printer_id] = view
+            self.members.setdefault(slot, set()).add(printer_id)
+            self._changed(printer_id)
+        waiting, copy.waiting = copy.waiting, []
+        for batch in sorted(waiting, key=lambda b: int(b["seq"])):
+            if int(batch["epoch"]) != epoch or int(batch["seq"]) <= copy.seq:
+                continue
+            if int(batch["seq"]) != copy.seq + 1:
+                copy.synced, copy.waiting = False, [batch]
+                return True
+            self._apply(slot, batch)
+        return False
+
+    def _apply(self, slot: int, body: dict[str, Any]) -> None:
+        copy = self.slots[slot]
+        copy.seq = int(body["seq"])
+        members = self.members.setdefault(slot, set())
+        for printer_id, patch in body["patches"].items():
+            old = self.views.get(printer_id)
+            self.views[printer_id] = patch if old is None else merge_status(old, patch)
+            members.add(printer_id)
+            self._changed(printer_id)
+        for printer_id in body["removed"]:
+            self.views.pop(printer_id, None)
+            members.discard(printer_id)
+            self._changed(printer_id)
+        for event in body["events"]:
+            self._event(event)
+
+    def check(self, now: float) -> list[int]:
+        """Mark slots stale or fresh by their last news; the slots needing a snapshot
+        (not in step, and heard from, so that someone owns them)."""
+        for slot, copy in enumerate(self.slots):
+            stale = now - copy.heard > STALE_SECONDS
+            if stale != copy.stale:
+                copy.stale = stale
+                for printer_id in self.members.get(slot, ()):
+                    self._changed(printer_id)
+        return [slot for slot, copy in enumerate(self.slots) if not copy.synced and not copy.stale]
+
+    def is_stale(self, slot: int) -> bool:
+        """Whether the slot's owner has been silent too long (or was never heard)."""
+        return self.slots[slot].stale

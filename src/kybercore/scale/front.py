@@ -1,0 +1,282 @@
+"""``kybercore front``: the fleet as a front sees it on NATS. No printer sockets.
+
+A :class:`FrontFleet` is the :class:`FleetService` the HTTP API and ``/ws`` use, with the
+printers held by workers:
+
+- the views are followed from the workers' patch batches (:mod:`.follow`) and published to
+  browsers by the same :class:`Hub` as in one process;
+- the configuration comes from the ``kc_registry`` bucket (:mod:`.registry`); adding,
+  editing and removing a printer write there, and the workers follow;
+- actions, dry runs, file lists and the console history go to the printer's owner as
+  commands (:mod:`.commands`): the owner validates against live state and answers.
+
+What a front does not do yet: uploads, thumbnails, macros, webcams and the temperature
+graph (they need the printer's Moonraker directly); each says so, with what to do.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, BinaryIO, Final
+
+import httpx
+from nats.aio.client import Client
+from nats.aio.msg import Msg
+from nats.errors import NoRespondersError
+from nats.errors import TimeoutError as NatsTimeout
+
+from kybercore.aio import cancel_and_wait
+from kybercore.core.validation import Verdict
+from kybercore.core.view import LivePrinter, View, fuse
+from kybercore.errors import UnknownPrinter, not_on_front
+from kybercore.fleet.actions import ActionOutcome
+from kybercore.fleet.service import FleetService
+from kybercore.moonraker.client import MoonrakerClient
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.registry.store import PrinterRegistry, read_printers
+from kybercore.scale.broker import connect
+from kybercore.scale.commands import send_command
+from kybercore.scale.follow import STALE_SECONDS, FleetCopy
+from kybercore.scale.registry import KvRegistry
+from kybercore.scale.slots import slot_of
+from kybercore.scale.wire import decode_outcome, decode_verdict, loads, patch_subject
+from kybercore.scale.wire import snapshot_subject as snap_subject
+
+log = logging.getLogger(__name__)
+
+CHECK_SECONDS: Final = 0.25
+SNAPSHOT_TIMEOUT: Final = 2.0
+
+
+class FrontFleet(FleetService):
+    """The fleet on NATS, seen from a front; see the module docstring."""
+
+    def __init__(
+        self,
+        nats_url: str,
+        http: httpx.AsyncClient,
+        *,
+        slots: int,
+        printers_file: Path,
+        **options: Any,
+    ) -> None:
+        """``printers_file`` is imported into an empty registry bucket at start."""
+        super().__init__(PrinterRegistry(printers_file), http, **options)
+        self._url = nats_url
+        self._connection: Client | None = None
+        self._slots = slots
+        self._printers_file = printers_file
+        self.kv = KvRegistry()
+        self._configs: dict[str, PrinterConfig] = {}
+        self.copy = FleetCopy(slots, self.hub.mark, self.hub.event)
+        self._asking: set[int] = set()
+        self._tasks: list[asyncio.Task[Any]] = []
+
+    async def start(self) -> None:
+        """Open the registry (importing printers.json into an empty one), follow every
+        slot, publish to browsers."""
+        self._connection = await connect(self._url, "kybercore-front")
+        await self.kv.open(self._nc)
+        if self._printers_file.exists():
+            printers = await asyncio.to_thread(read_printers, self._printers_file)
+            if imported := await self.kv.import_if_empty(printers):
+                log.info("imported %d printers from %s", imported, self._printers_file)
+        self._on_printers(await self.kv.printers())
+        await self._nc.subscribe(patch_subject("*"), cb=self._on_batch)
+        await self._nc.subscribe("kc.gcode.*", cb=self._on_console_line)
+        self.hub.start()
+        self._tasks = [
+            asyncio.create_task(self.kv.watch(self._on_printers), name="registry-watch"),
+            asyncio.create_task(self._watch_slots(), name="front-slots"),
+        ]
+
+    async def stop(self) -> None:
+        """Stop following and publishing."""
+        for task in self._tasks:
+            await cancel_and_wait(task)
+        await self.hub.stop()
+        if self._connection is not None:
+            await self._connection.close()
+
+    @property
+    def _nc(self) -> Client:
+        assert self._connection is not None, "start() first"
+        return self._connection
+
+    # -- following -----------------------------------------------------------------------
+
+    def _on_printers(self, printers: list[PrinterConfig]) -> None:
+        before = set(self._configs)
+        self._configs = {p.id: p for p in printers}
+        for printer_id in before | set(self._configs):
+            self.hub.mark(printer_id)
+
+    async def _on_batch(self, msg: Msg) -> None:
+        slot = int(msg.subject.split(".")[2])
+        if slot < self._slots and self.copy.batch(slot, loads(msg.data), time.monotonic()):
+            self._ask_snapshot(slot)
+
+    async def _on_console_line(self, msg: Msg) -> None:
+        line = loads(msg.data)
+        self.hub.console(str(line["printer"]), str(line["message"]))
+
+    async def _watch_slots(self) -> None:
+        while True:
+            await asyncio.sleep(CHECK_SECONDS)
+            for slot in self.copy.check(time.monotonic()):
+                self._ask_snapshot(slot)
+
+    def _ask_snapshot(self, slot: int) -> None:
+        if slot not in self._asking:
+            self._asking.add(slot)
+            task = asyncio.create_task(self._snapshot(slot))
+            task.add_done_callback(lambda _t: self._asking.discard(slot))
+
+    async def _snapshot(self, slot: int) -> None:
+        try:
+            reply = await self._nc.request(snap_subject(slot), b"", timeout=SNAPSHOT_TIMEOUT)
+        except (NoRespondersError, NatsTimeout, TimeoutError):
+            return  # the slot is moving; its next batch asks again
+        body = loads(reply.data)
+        if "views" in body and self.copy.snapshot(slot, body, time.monotonic()):
+            self._asking.discard(slot)
+            self._ask_snapshot(slot)
+
+    def _render(self, printer_id: str) -> View | None:
+        config = self._configs.get(printer_id)
+        if config is None:
+            return None
+        view = self.copy.views.get(printer_id)
+        if view is None:
+            return fuse(config, LivePrinter())  # no owner has reported it yet
+        if self.copy.is_stale(slot_of(printer_id, self._slots)):
+            message = (
+                f"No news from the KyberCore worker holding this printer for over "
+                f"{STALE_SECONDS:.0f} s; another worker takes it over shortly."
+            )
+            return {**view, "connection": "stale", "connection_error": message}
+        return view
+
+    # -- reading -------------------------------------------------------------------------
+
+    def view(self, printer_id: str) -> View:
+        """One printer's view, as last published."""
+        view = self.hub.view(printer_id) or self._render(printer_id)
+        if view is None:
+            raise UnknownPrinter(printer_id)
+        return view
+
+    def config(self, printer_id: str) -> PrinterConfig:
+        """A printer's configuration, from the registry bucket."""
+        config = self._configs.get(printer_id)
+        if config is None:
+            raise UnknownPrinter(printer_id)
+        return config
+
+    def client(self, printer_id: str) -> MoonrakerClient:
+        """Not on a front: its printers' sockets are held by workers."""
+        self.config(printer_id)
+        raise not_on_front("Reading the printer's Moonraker directly (macros, thumbnails, webcams)")
+
+    # -- the registry --------------------------------------------------------------------
+
+    async def add_printer(self, new: PrinterCreate, *, check: bool = False) -> View:
+        """Add a printer to the registry bucket; a worker connects to it."""
+        if check:
+            key = new.api_key.get_secret_value() if new.api_key else None
+            await self.probe(new.moonraker_url, key)
+        created = await self.kv.add(new)
+        self._on_printers([*self._configs.values(), created])
+        self.hub.refresh(created.id)
+        return self.view(created.id)
+
+    async def update_printer(self, printer_id: str, patch: PrinterUpdate) -> View:
+        """Edit a printer in the registry bucket (compare-and-set: a conflict is a 409)."""
+        self.config(printer_id)
+        updated = await self.kv.update(printer_id, patch)
+        self._on_printers([updated if p.id == printer_id else p for p in self._configs.values()])
+        self.hub.refresh(printer_id)
+        return self.view(printer_id)
+
+    async def remove_printer(self, printer_id: str) -> None:
+        """Remove a printer from the registry bucket."""
+        self.config(printer_id)
+        await self.kv.remove(printer_id)
+        self._on_printers([p for p in self._configs.values() if p.id != printer_id])
+        self.hub.refresh(printer_id)
+
+    # -- commands ------------------------------------------------------------------------
+
+    async def _command(self, printer_id: str, op: str, **args: Any) -> Any:
+        self.config(printer_id)
+        epoch = self.copy.slots[slot_of(printer_id, self._slots)].epoch
+        return await send_command(self._nc, printer_id, op, args, epoch=epoch)
+
+    async def dry_run(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        force: bool = False,
+    ) -> Verdict:
+        """What would happen, judged by the printer's owner against its live state."""
+        params = dict(params or {})
+        body = await self._command(printer_id, "dry_run", action=action, params=params, force=force)
+        return decode_verdict(body)
+
+    async def act(
+        self,
+        printer_id: str,
+        action: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        force: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Run ``action`` on the printer's owner: validated there, its real outcome here."""
+        body = await self._command(
+            printer_id, "act", action=action, params=dict(params or {}), force=force,
+            confirm=confirm,
+        )  # fmt: skip
+        outcome = decode_outcome(body)
+        if outcome.error is not None:
+            raise outcome.error
+        return outcome
+
+    async def upload(
+        self,
+        printer_id: str,
+        filename: str,
+        content: bytes | BinaryIO,
+        *,
+        start: bool = False,
+        confirm: bool = False,
+    ) -> ActionOutcome:
+        """Not on a front yet."""
+        self.config(printer_id)
+        raise not_on_front("Uploading a file")
+
+    async def files(self, printer_id: str) -> list[dict[str, Any]]:
+        """The printer's G-code files, newest first (from its owner)."""
+        found: list[dict[str, Any]] = await self._command(printer_id, "files")
+        return found
+
+    async def delete_file(self, printer_id: str, path: str) -> None:
+        """Delete a G-code file (its owner refuses the one being printed)."""
+        await self._command(printer_id, "delete_file", path=path)
+
+    async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
+        """Moonraker's metadata of one file (from the printer's owner)."""
+        found: dict[str, Any] = await self._command(printer_id, "file_metadata", filename=filename)
+        return found
+
+    async def console_history(self, printer_id: str, count: int) -> list[dict[str, Any]]:
+        """The printer's last console entries (from its owner)."""
+        found: list[dict[str, Any]] = await self._command(
+            printer_id, "console_history", count=count
+        )
+        return found

@@ -1,0 +1,174 @@
+"""The fleet's printers in a JetStream key-value bucket, when KyberCore runs on NATS.
+
+One key per printer (``p.<id>``, the printer's configuration as printers.json stores it).
+The same rules as printers.json (:mod:`kybercore.registry.changes`) decide what a change
+may do; the bucket makes it safe between processes: an add is a ``create`` (refused if the
+id appeared meanwhile), an edit and a delete are compare-and-set on the key's revision, so
+two fronts editing one printer at once cannot both win: the second gets a conflict (409).
+
+Workers and fronts :meth:`KvRegistry.watch` the bucket: the whole list at start, then every
+change. ``printers.json`` is the import and export format (``kybercore front
+--printers-file``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import re
+from collections.abc import Callable
+from typing import Final
+
+from nats.aio.client import Client
+from nats.js.errors import KeyWrongLastSequenceError, NoKeysError
+from nats.js.kv import KeyValue
+
+from kybercore.errors import ActionRejected
+from kybercore.registry import changes
+from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.scale.wire import dumps, loads
+
+log = logging.getLogger(__name__)
+
+BUCKET: Final = "kc_registry"
+PREFIX: Final = "p."
+
+OnPrinters = Callable[[list[PrinterConfig]], None]
+
+
+def _key(printer_id: str) -> str:
+    return PREFIX + printer_id
+
+
+def fleet_order(printers: list[PrinterConfig]) -> list[PrinterConfig]:
+    """Printers in a stable, human order (printer-2 before printer-10)."""
+    return sorted(printers, key=lambda p: _natural(p.id))
+
+
+def _natural(text: str) -> list[tuple[int, str]]:
+    # (0, digits as a number) sorts numbers among themselves; (1, text) after them.
+    return [(0, f"{int(t):020d}") if t.isdigit() else (1, t) for t in re.split(r"(\d+)", text)]
+
+
+def _conflict(printer_id: str) -> ActionRejected:
+    return ActionRejected(
+        f"Printer '{printer_id}' was changed by someone else at the same time. Reload it and "
+        "make your change again.",
+        code="conflict",
+    )
+
+
+class KvRegistry:
+    """The fleet's printers in the ``kc_registry`` bucket."""
+
+    def __init__(self) -> None:
+        self._kv: KeyValue | None = None
+
+    async def open(self, nc: Client) -> None:
+        """Open (or create) the bucket; file storage, so it outlives a broker restart."""
+        js = nc.jetstream()
+        self._kv = await js.create_key_value(bucket=BUCKET, history=10)
+
+    @property
+    def kv(self) -> KeyValue:
+        """The bucket (after :meth:`open`)."""
+        assert self._kv is not None, "open() first"
+        return self._kv
+
+    async def _entries(self) -> dict[str, tuple[PrinterConfig, int]]:
+        """Every printer with its key's revision."""
+        try:
+            keys = await self.kv.keys()
+        except NoKeysError:
+            return {}
+        found: dict[str, tuple[PrinterConfig, int]] = {}
+        for key in keys:
+            if not key.startswith(PREFIX):
+                continue
+            with contextlib.suppress(Exception):  # deleted between keys() and get()
+                entry = await self.kv.get(key)
+                if entry.value:
+                    config = PrinterConfig.model_validate(loads(entry.value))
+                    found[config.id] = (config, entry.revision or 0)
+        return found
+
+    async def printers(self) -> list[PrinterConfig]:
+        """Every printer, in fleet order."""
+        return fleet_order([config for config, _ in (await self._entries()).values()])
+
+    async def add(self, new: PrinterCreate) -> PrinterConfig:
+        """Add a printer (the rules of printers.json); a clash with a concurrent add is a
+        conflict."""
+        printers = await self.printers()
+        printer = changes.add_printer(printers, new)
+        try:
+            await self.kv.create(_key(printer.id), dumps(printer.to_file_dict()))
+        except KeyWrongLastSequenceError:
+            raise _conflict(printer.id) from None
+        return printer
+
+    async def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
+        """Edit a printer: compare-and-set on the revision it was read at."""
+        entries = await self._entries()
+        printers = fleet_order([config for config, _ in entries.values()])
+        updated = changes.update_printer(printers, printer_id, patch)
+        try:
+            value = dumps(updated.to_file_dict())
+            await self.kv.update(_key(printer_id), value, last=entries[printer_id][1])
+        except KeyWrongLastSequenceError:
+            raise _conflict(printer_id) from None
+        return updated
+
+    async def remove(self, printer_id: str) -> PrinterConfig:
+        """Remove a printer: compare-and-set on the revision it was read at."""
+        entries = await self._entries()
+        removed = changes.remove_printer([config for config, _ in entries.values()], printer_id)
+        try:
+            await self.kv.delete(_key(printer_id), last=entries[printer_id][1])
+        except KeyWrongLastSequenceError:
+            raise _conflict(printer_id) from None
+        return removed
+
+    async def import_if_empty(self, printers: list[PrinterConfig]) -> int:
+        """Load ``printers`` (from printers.json) into an empty bucket; how many were."""
+        if await self._entries():
+            return 0
+        for printer in printers:
+            with contextlib.suppress(KeyWrongLastSequenceError):  # another front won
+                await self.kv.create(_key(printer.id), dumps(printer.to_file_dict()))
+        return len(printers)
+
+    async def watch(self, on_change: OnPrinters) -> None:
+        """Call ``on_change(printers)`` with the whole list now and after every change,
+        forever (run it as a task; cancel it to stop). A broken entry is skipped, logged."""
+        current: dict[str, PrinterConfig] = {}
+        watcher = await self.kv.watchall()
+        initial_done = False
+        try:
+            while True:
+                try:
+                    entry = await watcher.updates(timeout=3600)  # type: ignore[no-untyped-call]
+                except TimeoutError:
+                    continue
+                if entry is None:  # the end of the initial values
+                    initial_done = True
+                    on_change(fleet_order(list(current.values())))
+                    continue
+                if not entry.key.startswith(PREFIX):
+                    continue
+                printer_id = entry.key[len(PREFIX) :]
+                if entry.operation in ("DEL", "PURGE") or not entry.value:
+                    current.pop(printer_id, None)
+                else:
+                    try:
+                        current[printer_id] = PrinterConfig.model_validate(loads(entry.value))
+                    except ValueError as exc:
+                        log.warning("registry: printer %s skipped: %s", printer_id, exc)
+                        continue
+                if initial_done:
+                    on_change(fleet_order(list(current.values())))
+        finally:
+            with contextlib.suppress(Exception):
+                await watcher.stop()  # type: ignore[no-untyped-call]
+            await asyncio.sleep(0)

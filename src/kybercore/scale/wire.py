@@ -1,0 +1,134 @@
+"""What KyberCore's processes say to each other over NATS: the subjects, and how outcomes,
+verdicts and errors cross a process boundary intact.
+
+An error raised in a worker reaches the front as the same class with the same code,
+message and reasons, so the one HTTP mapping (:mod:`kybercore.api.errors`) answers exactly
+as ``kybercore serve`` would.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import orjson
+
+from kybercore import errors
+from kybercore.core.messages import Reason
+from kybercore.core.validation import Verdict
+from kybercore.fleet.actions import ActionOutcome
+
+EPOCH_HEADER: Final = "KC-Epoch"
+"""The slot epoch a front knows for the printer: a worker holding another epoch refuses."""
+
+
+def patch_subject(slot: int | str) -> str:
+    """Where a slot's owner publishes its per-tick patch batches (``*``: every slot)."""
+    return f"kc.s.{slot}.patch"
+
+
+def snapshot_subject(slot: int) -> str:
+    """Where a slot's owner answers with the full views of the slot's printers."""
+    return f"kc.s.{slot}.snap"
+
+
+def command_subject(printer_id: str) -> str:
+    """Where a printer's owner takes its commands (request/reply)."""
+    return f"kc.cmd.{printer_id}"
+
+
+def console_subject(printer_id: str) -> str:
+    """Where a printer's owner publishes its G-code responses."""
+    return f"kc.gcode.{printer_id}"
+
+
+def dumps(value: Any) -> bytes:
+    """JSON for the wire."""
+    return orjson.dumps(value)
+
+
+def loads(data: bytes) -> Any:
+    """JSON from the wire."""
+    return orjson.loads(data)
+
+
+# -- errors --------------------------------------------------------------------------------
+
+# Plain attributes some errors carry (rpc_code, printer, state...): they travel too.
+_SIMPLE = (str, int, float, bool, type(None))
+
+
+def _error_classes() -> dict[str, type[errors.KyberCoreError]]:
+    found: dict[str, type[errors.KyberCoreError]] = {}
+    pending: list[type[errors.KyberCoreError]] = [errors.KyberCoreError]
+    while pending:
+        kind = pending.pop()
+        found[kind.__name__] = kind
+        pending.extend(kind.__subclasses__())
+    return found
+
+
+def encode_error(exc: errors.KyberCoreError) -> dict[str, Any]:
+    """``exc`` as plain data."""
+    attrs = {
+        k: v
+        for k, v in vars(exc).items()
+        if k not in ("message", "reasons") and isinstance(v, _SIMPLE)
+    }
+    return {
+        "type": type(exc).__name__,
+        "code": exc.code,
+        "message": exc.message,
+        "reasons": list(exc.reasons),
+        "attrs": attrs,
+    }
+
+
+def decode_error(data: dict[str, Any]) -> errors.KyberCoreError:
+    """The error :func:`encode_error` described, as its own class (a class this process
+    does not know becomes a plain KyberCoreError with the same code and message)."""
+    kind = _error_classes().get(str(data.get("type")), errors.KyberCoreError)
+    exc = kind.__new__(kind)
+    errors.KyberCoreError.__init__(exc, str(data.get("message", "")), reasons=data["reasons"])
+    for name, value in dict(data.get("attrs") or {}).items():
+        setattr(exc, name, value)
+    exc.code = str(data.get("code") or exc.code)
+    return exc
+
+
+# -- outcomes and verdicts -------------------------------------------------------------------
+
+
+def encode_outcome(outcome: ActionOutcome) -> dict[str, Any]:
+    """An action's outcome as plain data."""
+    return {
+        "printer_id": outcome.printer_id,
+        "action": outcome.action,
+        "message": outcome.message,
+        "error": encode_error(outcome.error) if outcome.error else None,
+        "reasons": outcome.reasons,
+        "start": encode_outcome(outcome.start) if outcome.start else None,
+        "response": outcome.response,
+    }
+
+
+def decode_outcome(data: dict[str, Any]) -> ActionOutcome:
+    """The outcome :func:`encode_outcome` described."""
+    return ActionOutcome(
+        printer_id=data["printer_id"],
+        action=data["action"],
+        message=data["message"],
+        error=decode_error(data["error"]) if data.get("error") else None,
+        reasons=list(data.get("reasons") or []),
+        start=decode_outcome(data["start"]) if data.get("start") else None,
+        response=list(data.get("response") or []),
+    )
+
+
+def encode_verdict(verdict: Verdict) -> dict[str, Any]:
+    """A validation verdict as plain data."""
+    return {"reasons": [vars(r) for r in verdict.reasons]}
+
+
+def decode_verdict(data: dict[str, Any]) -> Verdict:
+    """The verdict :func:`encode_verdict` described."""
+    return Verdict.of(Reason(**r) for r in data["reasons"])

@@ -1,0 +1,251 @@
+"""``kybercore ingest``: a worker that owns a share of the fleet's printers on NATS.
+
+It holds slots by lease (:mod:`.leases`), and for the printers of its slots it runs what
+``kybercore serve`` runs for all of them: Moonraker sessions, live state, fused views and
+validated actions (a :class:`FleetService`). Instead of browsers it has NATS:
+
+- once per hub tick, one patch batch per slot on ``kc.s.<slot>.patch``, with the slot's
+  epoch and a sequence number (an empty one each second as a heartbeat);
+- the slot's full views on request at ``kc.s.<slot>.snap`` (a front that starts, or saw a
+  gap or a new epoch);
+- commands at ``kc.cmd.<printer id>``: acknowledged at once, then answered with the outcome
+  (:mod:`.commands`).
+
+A slot it stops owning is no longer published or acted for at once, but its printers'
+Moonraker sessions are kept for a grace period: if the slot comes back (a broker blip),
+nothing reconnects.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Final
+
+import httpx
+import picows
+from nats.aio.client import Client
+from nats.aio.msg import Msg
+from nats.aio.subscription import Subscription
+
+from kybercore.aio import cancel_and_wait
+from kybercore.fleet.service import FleetService
+from kybercore.moonraker.link import Connect
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import PrinterRegistry
+from kybercore.scale.commands import CommandRunner
+from kybercore.scale.leases import Leases
+from kybercore.scale.registry import KvRegistry
+from kybercore.scale.slots import slot_of
+from kybercore.scale.wire import (
+    command_subject,
+    console_subject,
+    dumps,
+    patch_subject,
+    snapshot_subject,
+)
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_SECONDS: Final = 1.0
+GRACE_SECONDS: Final = 30.0
+"""How long the sessions of a lost slot stay open, in case it comes back."""
+CHECK_SECONDS: Final = 0.25
+"""How often ownership is looked at between lease rounds (fencing is noticed this fast)."""
+
+
+class Worker:
+    """One ingest worker; :meth:`start`, then :meth:`stop`."""
+
+    def __init__(
+        self,
+        nc: Client,
+        worker_id: str,
+        http: httpx.AsyncClient,
+        *,
+        slots: int,
+        ttl: float,
+        folder: Path,
+        grace: float = GRACE_SECONDS,
+        connect: Connect = picows.ws_connect,
+    ) -> None:
+        """``folder`` keeps the worker's own/drop log (``leases.jsonl``)."""
+        self._nc = nc
+        self.worker_id = worker_id
+        self.slots = slots
+        self._grace = grace
+        self.registry = KvRegistry()
+        # Never read: the worker's printers come from the bucket, applied by _reconcile.
+        unused = PrinterRegistry(folder / "printers.json")
+        self.service = FleetService(
+            unused, http, connect=connect, on_publish=self._published, on_console=self._console
+        )
+        self.leases = Leases(
+            nc, worker_id, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
+            on_change=lambda _slot, _epoch: self._wake.set(),
+        )  # fmt: skip
+        self.commands = CommandRunner(self.service, self._epoch_of)
+        self._printers: list[PrinterConfig] = []
+        self._owned: dict[int, int] = {}
+        self._kept: dict[int, float] = {}
+        """Lost slots whose sessions stay open, until this monotonic() time."""
+        self._seq: dict[int, int] = defaultdict(int)
+        self._sent_at: dict[int, float] = {}
+        self._snap_subs: dict[int, Subscription] = {}
+        self._cmd_subs: dict[str, Subscription] = {}
+        self._outbox: asyncio.Queue[tuple[str, bytes]] = asyncio.Queue()
+        self._wake = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = []
+
+    async def start(self) -> None:
+        """Open the buckets, start following the registry and claiming slots."""
+        await self.registry.open(self._nc)
+        self.service.hub.start()
+        await self.leases.start()
+        self._tasks = [
+            asyncio.create_task(self.registry.watch(self._on_printers), name="registry-watch"),
+            asyncio.create_task(self._run(), name="worker-loop"),
+            asyncio.create_task(self._send(), name="worker-publisher"),
+        ]
+
+    async def stop(self) -> None:
+        """Hand every slot back, close every session."""
+        await self.leases.stop(release=True)
+        for task in self._tasks:
+            await cancel_and_wait(task)
+        await self.commands.stop()
+        await self.service.stop()
+
+    # -- ownership -----------------------------------------------------------------------
+
+    def _epoch_of(self, printer_id: str) -> int | None:
+        return self.leases.epoch(slot_of(printer_id, self.slots))
+
+    def _on_printers(self, printers: list[PrinterConfig]) -> None:
+        self._printers = printers
+        self._wake.set()
+
+    async def _run(self) -> None:
+        while True:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), CHECK_SECONDS)
+            self._wake.clear()
+            try:
+                await self._reconcile()
+                await self._heartbeat()
+            except Exception:  # one bad round must not stop the worker
+                log.exception("%s: reconcile failed", self.worker_id)
+
+    async def _reconcile(self) -> None:
+        owned = self.leases.owned()  # fences what is too old
+        now = time.monotonic()
+        for slot in set(self._owned) - set(owned):
+            self._kept[slot] = now + self._grace
+            if (sub := self._snap_subs.pop(slot, None)) is not None:
+                await sub.unsubscribe()
+        for slot in set(owned) - set(self._owned):
+            self._kept.pop(slot, None)
+            self._snap_subs[slot] = await self._nc.subscribe(
+                snapshot_subject(slot), cb=self._on_snapshot_request
+            )
+        self._owned = owned
+        self._kept = {s: until for s, until in self._kept.items() if until > now}
+        mine = [p for p in self._printers if slot_of(p.id, self.slots) in owned]
+        await self._follow_commands({p.id for p in mine})
+        keep = set(owned) | set(self._kept)
+        kept = [p for p in self._printers if slot_of(p.id, self.slots) in keep]
+        self.service.sessions.apply(kept)
+
+    async def _follow_commands(self, printer_ids: set[str]) -> None:
+        # One subscription per owned printer: when no worker owns it, a command gets "no
+        # responders" at once instead of waiting for a timeout.
+        for printer_id in set(self._cmd_subs) - printer_ids:
+            await self._cmd_subs.pop(printer_id).unsubscribe()
+        for printer_id in printer_ids - set(self._cmd_subs):
+            self._cmd_subs[printer_id] = await self._nc.subscribe(
+                command_subject(printer_id), cb=self.commands.on_message
+            )
+
+    # -- publishing ----------------------------------------------------------------------
+
+    def _published(
+        self, patches: dict[str, Any], removed: set[str], events: list[dict[str, Any]]
+    ) -> None:
+        batches: dict[int, dict[str, Any]] = {}
+
+        def batch(printer_id: str) -> dict[str, Any] | None:
+            slot = slot_of(printer_id, self.slots)
+            if slot not in batches:
+                if not self._acting_for(slot):
+                    return None  # not ours (any more): the owner publishes it
+                batches[slot] = {"patches": {}, "removed": [], "events": []}
+            return batches[slot]
+
+        for printer_id, patch in patches.items():
+            if (found := batch(printer_id)) is not None:
+                found["patches"][printer_id] = patch
+        for printer_id in removed:
+            if (found := batch(printer_id)) is not None:
+                found["removed"].append(printer_id)
+        for event in events:
+            about = event.get("printer")
+            if isinstance(about, str) and (found := batch(about)) is not None:
+                found["events"].append(event)
+        for slot, body in batches.items():
+            self._seq[slot] += 1
+            self._queue(slot, body)
+
+    def _acting_for(self, slot: int) -> bool:
+        # Owned by lease and set up (command and snapshot subscriptions): a front that sees
+        # the slot's printers fresh can act on them.
+        return slot in self._owned and self.leases.epoch(slot) is not None
+
+    def _queue(self, slot: int, body: dict[str, Any]) -> None:
+        epoch = self.leases.epoch(slot)
+        if epoch is None:
+            return
+        message = {"epoch": epoch, "seq": self._seq[slot], "worker": self.worker_id, **body}
+        self._sent_at[slot] = time.monotonic()
+        self._outbox.put_nowait((patch_subject(slot), dumps(message)))
+
+    async def _heartbeat(self) -> None:
+        now = time.monotonic()
+        for slot in self._owned:
+            if now - self._sent_at.get(slot, 0.0) >= HEARTBEAT_SECONDS:
+                self._queue(slot, {"patches": {}, "removed": [], "events": []})
+
+    def _console(self, printer_id: str, message: str) -> None:
+        if self._acting_for(slot_of(printer_id, self.slots)):
+            body = dumps({"printer": printer_id, "message": message})
+            self._outbox.put_nowait((console_subject(printer_id), body))
+
+    async def _send(self) -> None:
+        # One sender keeps a slot's batches in order on the wire.
+        while True:
+            subject, data = await self._outbox.get()
+            try:
+                await self._nc.publish(subject, data)
+            except Exception as exc:  # broker away: fronts re-snapshot on the seq gap
+                log.debug("%s: publish to %s failed: %s", self.worker_id, subject, exc)
+
+    async def _on_snapshot_request(self, msg: Msg) -> None:
+        slot = int(msg.subject.split(".")[2])
+        epoch = self.leases.epoch(slot)
+        if epoch is None or slot not in self._owned:
+            await msg.respond(dumps({"moving": True}))
+            return
+        views = {
+            p.id: view
+            for p in self._printers
+            if slot_of(p.id, self.slots) == slot and (view := self.service.hub.view(p.id))
+        }
+        body = {"epoch": epoch, "seq": self._seq[slot], "worker": self.worker_id, "views": views}
+        await msg.respond(dumps(body))
+
+    def owned(self) -> dict[int, int]:
+        """``slot → epoch`` of the slots this worker acts for now."""
+        return dict(self._owned)

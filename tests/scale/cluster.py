@@ -1,0 +1,111 @@
+"""KyberCore on NATS as real processes for the tests: ingest workers and a front over a
+real nats-server and real virtual printers, each stoppable, killable and pausable by PID."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from kybercore.scale.broker import LocalServer
+from tests.helpers import KyberCoreServer
+
+SLOTS = 16
+TTL = 3.0
+
+
+class WorkerProcess:
+    """One ``kybercore ingest`` subprocess."""
+
+    def __init__(self, name: str, url: str, folder: Path) -> None:
+        self.name = name
+        self.folder = folder / name
+        self.folder.mkdir(parents=True, exist_ok=True)
+        command = [
+            sys.executable, "-m", "kybercore", "ingest", "--nats", url, "--worker-id", name,
+            "--slots", str(SLOTS), "--lease-ttl", str(TTL), "--dir", str(self.folder),
+        ]  # fmt: skip
+        with (self.folder / "worker.log").open("ab") as log:
+            self.proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+
+    @property
+    def leases_log(self) -> Path:
+        """Its own/drop log."""
+        return self.folder / "leases.jsonl"
+
+    def owned(self) -> set[int]:
+        """The slots it owns now, replayed from its own/drop log (none once it is dead: a
+        killed worker writes no drops)."""
+        owned: set[int] = set()
+        if self.proc.poll() is None and self.leases_log.exists():
+            for line in self.leases_log.read_text().splitlines():
+                event = json.loads(line)
+                (owned.add if event["ev"] == "own" else owned.discard)(event["slot"])
+        return owned
+
+    def signal(self, sig: signal.Signals) -> None:
+        """Send ``sig`` to it (by PID)."""
+        os.kill(self.proc.pid, sig)
+
+    def stop(self) -> None:
+        """Continue it if paused, then stop it and wait."""
+        if self.proc.poll() is None:
+            self.signal(signal.SIGCONT)
+            self.proc.terminate()
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+class Cluster:
+    """A broker, workers and one front; :meth:`close` stops what is still running."""
+
+    def __init__(self, broker: LocalServer, folder: Path, front: KyberCoreServer) -> None:
+        self.broker = broker
+        self.folder = folder
+        self.front = front
+        self.workers: dict[str, WorkerProcess] = {}
+
+    def worker(self, name: str) -> WorkerProcess:
+        """Start the worker ``name``."""
+        self.workers[name] = WorkerProcess(name, self.broker.url, self.folder)
+        return self.workers[name]
+
+    def views(self) -> list[dict[str, Any]]:
+        """The fleet as the front shows it."""
+        answer = httpx.get(f"{self.front.url}/api/printers", timeout=10)
+        answer.raise_for_status()
+        views: list[dict[str, Any]] = answer.json()
+        return views
+
+    def all_fresh(self, count: int) -> bool:
+        """Whether ``count`` printers are online, ready and reported by a live owner."""
+        views = self.views()
+        fresh = [v for v in views if v["connection"] == "online" and v["klippy_state"] == "ready"]
+        return len(fresh) == count
+
+    def close(self) -> None:
+        """Stop the front and every worker."""
+        self.front.stop()
+        for worker in self.workers.values():
+            worker.stop()
+
+
+def wait(what: str, predicate: Callable[[], bool], timeout: float) -> float:
+    """Poll ``predicate`` until true; the seconds it took (AssertionError after timeout)."""
+    began = time.monotonic()
+    while not predicate():
+        if time.monotonic() - began > timeout:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.05)  # poll other processes' state, deadline above
+    return time.monotonic() - began

@@ -1,0 +1,187 @@
+"""KyberCore on NATS as real processes: a nats-server, ingest workers and a front over
+real virtual printers. The failure table of the design, end to end: a worker killed, a
+worker joining, a worker paused past its lease, the broker restarted."""
+
+from __future__ import annotations
+
+import signal
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import write_printers
+from kybercore.scale.broker import LocalServer
+from kybercore.scale.slots import slot_of
+from kybercore.sim.stack import PrinterStack, free_port
+from tests.helpers import KyberCoreServer
+from tests.scale.cluster import SLOTS, TTL, Cluster, wait
+from tests.scale.replay import no_overlap
+
+# A dead worker's printers are fresh again within TTL + TTL/3 + a Moonraker connect; the
+# issue's promise is 10 s at TTL 3. Not slackened: it is the product's promise.
+FRESH_AGAIN = 10.0
+SETTLE = 5 * (TTL + TTL / 3)
+"""Ownership settling (start, rebalance): ~TTL + TTL/3, with 5× slack."""
+AT_ONCE = 2.5
+"""An answer "at once": no timeout involved (5× a busy machine's half second)."""
+
+
+@pytest.fixture
+def cluster(
+    fleet_stacks: list[PrinterStack], nats_server: LocalServer, tmp_path: Path
+) -> Iterator[Cluster]:
+    printers = [
+        PrinterConfig(id=s.options.name, name=s.options.name, moonraker_url=s.url)
+        for s in fleet_stacks
+    ]
+    write_printers(tmp_path / "printers.json", printers)
+    front = KyberCoreServer(
+        tmp_path / "printers.json", free_port(), "--nats", nats_server.url,
+        "--slots", str(SLOTS), command="front",
+    )  # fmt: skip
+    started = Cluster(nats_server, tmp_path, front)
+    try:
+        w1 = started.worker("w1")
+        wait("w1 owns every slot", lambda: len(w1.owned()) == SLOTS, SETTLE)
+        started.worker("w2")
+        front.start()
+        yield started
+    finally:
+        started.close()
+
+
+def owner(cluster: Cluster, printer_id: str) -> str:
+    """The worker owning the printer now, from the own/drop logs."""
+    slot = slot_of(printer_id, SLOTS)
+    owners = [name for name, w in cluster.workers.items() if slot in w.owned()]
+    assert len(owners) <= 1, owners
+    return owners[0] if owners else ""
+
+
+def respond(cluster: Cluster, printer_id: str, sent: dict[str, int]) -> httpx.Response:
+    """Send a uniquely marked RESPOND; remember the marker with the answer's status."""
+    marker = f"kc-{uuid.uuid4().hex[:10]}"
+    answer = httpx.post(
+        f"{cluster.front.url}/api/printers/{printer_id}/gcode",
+        json={"script": f"RESPOND MSG={marker}"},
+        timeout=30,
+    )
+    sent[marker] = answer.status_code
+    return answer
+
+
+def console_markers(stack: PrinterStack) -> list[str]:
+    """The RESPOND markers Moonraker's gcode store holds as commands run."""
+    store = httpx.get(f"{stack.url}/server/gcode_store", params={"count": 1000}, timeout=10)
+    return [
+        e["message"].removeprefix("RESPOND MSG=")
+        for e in store.json()["result"]["gcode_store"]
+        if e["type"] == "command" and e["message"].startswith("RESPOND MSG=kc-")
+    ]
+
+
+def test_failover_rebalance_fencing_and_broker_restart(
+    cluster: Cluster, fleet_stacks: list[PrinterStack], tmp_path: Path
+) -> None:
+    count = len(fleet_stacks)
+    workers = cluster.workers
+    w1, w2 = workers["w1"], workers["w2"]
+    sent: dict[str, int] = {}
+    took = wait("an even split", lambda: len(w1.owned()) == len(w2.owned()) == 8, SETTLE)
+    wait("every printer fresh through the front", lambda: cluster.all_fresh(count), 60)
+    print(f"8/8 split in {took:.1f} s")
+    assert respond(cluster, "fleet-a", sent).status_code == 200
+
+    # 1. kill -9 the owner of fleet-a: a command answers 503 at once, then all fresh.
+    assert owner(cluster, "fleet-a") == "w1"
+    killed_at, died = time.monotonic(), {"w1": time.time()}
+    w1.signal(signal.SIGKILL)
+    w1.proc.wait()
+    began = time.monotonic()
+    answer = respond(cluster, "fleet-a", sent)
+    assert answer.status_code == 503, answer.text
+    assert answer.json()["error"]["code"] == "owner_moving"
+    assert time.monotonic() - began < AT_ONCE
+    wait("fleet-a stale or moved", lambda: not cluster.all_fresh(count), SETTLE)
+    wait("every printer fresh again", lambda: cluster.all_fresh(count), FRESH_AGAIN)
+    fresh_in = time.monotonic() - killed_at
+    print(f"fresh again {fresh_in:.1f} s after kill -9 (TTL {TTL:g} s)")
+    assert fresh_in <= FRESH_AGAIN
+    assert respond(cluster, "fleet-a", sent).status_code == 200
+
+    # 2. A third worker joins: the two share the slots.
+    w3 = cluster.worker("w3")
+    took = wait("w2 and w3 at 8/8", lambda: len(w2.owned()) == len(w3.owned()) == 8, SETTLE)
+    print(f"rebalanced in {took:.1f} s")
+    wait("every printer fresh after the rebalance", lambda: cluster.all_fresh(count), SETTLE)
+
+    # 3. Pause fleet-a's owner past its lease: the other takes over; the paused one,
+    #    continued, fences itself and runs none of the commands sent meanwhile.
+    paused = workers[owner(cluster, "fleet-a")]
+    other = w3 if paused is w2 else w2
+    paused.signal(signal.SIGSTOP)
+    try:
+        answer = respond(cluster, "fleet-a", sent)
+        # Its subscriptions still exist: no acknowledgement, so the outcome is unknown.
+        assert answer.status_code in (503, 504), answer.text
+        wait("the other worker owns every slot", lambda: len(other.owned()) == SLOTS, SETTLE)
+    finally:
+        paused.signal(signal.SIGCONT)
+    wait("every printer fresh after the takeover", lambda: cluster.all_fresh(count), SETTLE)
+    wait("the paused worker dropped its slots", lambda: not paused.owned(), SETTLE)
+    assert respond(cluster, "fleet-a", sent).status_code == 200
+
+    # 4. The broker restarts: every process reconnects, every printer fresh again.
+    cluster.broker.stop()
+    cluster.broker.start(port=cluster.broker.port)
+    wait("every printer fresh after the broker restart", lambda: cluster.all_fresh(count), 60)
+    # JetStream recovers its streams for a few seconds after a restart: leases may still
+    # move, and a command meanwhile is refused with "owner moving, retry" (never run).
+    wait(
+        "a command runs again", lambda: respond(cluster, "fleet-a", sent).status_code == 200, SETTLE
+    )
+
+    # Every command answered 200 ran exactly once; none ran twice.
+    ran = console_markers(next(s for s in fleet_stacks if s.options.name == "fleet-a"))
+    for marker, status in sent.items():
+        assert ran.count(marker) == (1 if status == 200 else ran.count(marker)) <= 1, marker
+    no_overlap([w.leases_log for w in workers.values()], died)
+
+
+def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) -> None:
+    wait("every printer fresh", lambda: cluster.all_fresh(3), 60)
+    url = cluster.front.url
+    answer = httpx.post(f"{url}/api/printers/fleet-b/gcode", json={"script": "M115"}, timeout=30)
+    assert answer.status_code == 200, answer.text
+    assert any("FIRMWARE_NAME" in line for line in answer.json()["response"])
+    check = httpx.post(f"{url}/api/printers/fleet-c/actions/pause/check", json={}, timeout=30)
+    assert check.status_code == 200, check.text
+    assert check.json()["level"] == "block"  # nothing to pause: judged on the owner's state
+    assert httpx.get(f"{url}/api/printers/nope", timeout=10).status_code == 404
+    files = httpx.get(f"{url}/api/printers/fleet-a/files", timeout=30)
+    assert files.status_code == 200, files.text
+    history = httpx.get(f"{url}/api/printers/fleet-a/console", params={"count": 3}, timeout=30)
+    assert history.status_code == 200
+    assert len(history.json()) == 3
+    # Edits land in the registry bucket and the workers follow them.
+    renamed = httpx.patch(f"{url}/api/printers/fleet-b", json={"name": "Renamed B"}, timeout=30)
+    assert renamed.status_code == 200, renamed.text
+    wait(
+        "the owner's view shows the new name",
+        lambda: _name(cluster, "fleet-b") == "Renamed B",
+        SETTLE,
+    )
+    # What a front does not do yet says so, as a clear refusal (not a 500).
+    queue = httpx.get(f"{url}/api/queue", timeout=10)
+    assert queue.status_code == 409
+    assert queue.json()["error"]["code"] == "not_on_front"
+
+
+def _name(cluster: Cluster, printer_id: str) -> str:
+    view: Callable[[], list[dict[str, str]]] = cluster.views
+    return next(v["name"] for v in view() if v["id"] == printer_id)

@@ -1,0 +1,53 @@
+"""A front's copy of the fleet, slot by slot: pure bookkeeping, no broker."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from kybercore.scale.follow import STALE_SECONDS, FleetCopy
+
+
+def batch(epoch: int, seq: int, **patches: Any) -> dict[str, Any]:
+    return {"epoch": epoch, "seq": seq, "patches": patches, "removed": [], "events": []}
+
+
+def copy() -> tuple[FleetCopy, list[str]]:
+    changed: list[str] = []
+    return FleetCopy(4, changed.append, lambda _e: None), changed
+
+
+def test_batches_wait_for_a_snapshot_then_apply_in_order() -> None:
+    fleet, _ = copy()
+    assert fleet.batch(1, batch(7, 5, p={"x": 5}), now=0.0)  # new epoch: snapshot please
+    assert not fleet.batch(1, batch(7, 6, p={"x": 6}), now=0.1)
+    assert not fleet.snapshot(1, {"epoch": 7, "seq": 5, "views": {"p": {"x": 5, "y": 1}}}, 0.2)
+    assert fleet.views["p"] == {"x": 6, "y": 1}  # seq 5 was in the snapshot, 6 applied after
+    assert not fleet.batch(1, batch(7, 7, p={"y": 2}), now=0.3)
+    assert fleet.views["p"] == {"x": 6, "y": 2}
+
+
+def test_a_gap_asks_for_a_snapshot_and_an_older_epoch_is_ignored() -> None:
+    fleet, _ = copy()
+    fleet.batch(0, batch(3, 1), now=0.0)
+    fleet.snapshot(0, {"epoch": 3, "seq": 1, "views": {"p": {"x": 1}}}, 0.0)
+    assert fleet.batch(0, batch(3, 3, p={"x": 3}), now=0.1)  # seq 2 went missing
+    assert fleet.views["p"] == {"x": 1}
+    assert not fleet.batch(0, batch(2, 9, p={"x": 99}), now=0.2)  # a paused old owner
+    fleet.snapshot(0, {"epoch": 3, "seq": 3, "views": {"p": {"x": 3}}}, 0.3)
+    assert not fleet.batch(0, batch(2, 10, p={"x": 99}), now=0.4)
+    assert fleet.views["p"] == {"x": 3}
+
+
+def test_a_silent_slot_goes_stale_and_comes_back() -> None:
+    fleet, changed = copy()
+    fleet.batch(2, batch(1, 1), now=0.0)
+    fleet.snapshot(2, {"epoch": 1, "seq": 1, "views": {"p": {"x": 1}}}, 0.0)
+    assert fleet.check(now=1.0) == []
+    assert not fleet.is_stale(2)
+    changed.clear()
+    fleet.check(now=STALE_SECONDS + 0.5)
+    assert fleet.is_stale(2)
+    assert changed == ["p"]  # redrawn as stale
+    fleet.batch(2, batch(1, 1), now=STALE_SECONDS + 1)  # a heartbeat
+    fleet.check(now=STALE_SECONDS + 1)
+    assert not fleet.is_stale(2)
