@@ -2,7 +2,7 @@
 // priority, state and why they wait; drag (or the arrow buttons) to reorder, cancel with a
 // confirmation, pause and resume the whole queue. One row per job, kept by id and updated
 // in place. Live through queue_data.js.
-import { api } from "./api.js";
+import { ApiError, api } from "./api.js";
 import { confirmDialog, toast } from "./dialogs.js";
 import { h, icon, setAttr, setHidden, setText } from "./dom.js";
 import { sinceText } from "./gates.js";
@@ -269,7 +269,7 @@ async function cancelJob(job) {
   try {
     await api.cancelJob(job.id);
   } catch (error) {
-    if (error.code !== "confirmation_required") {
+    if (!(error instanceof ApiError) || error.code !== "confirmation_required") {
       toast({ kind: "error", title: t("queue.cancel"), message: messageOf(error) });
       return;
     }
