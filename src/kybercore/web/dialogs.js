@@ -1,6 +1,6 @@
 // Accessible modals (native <dialog>: focus kept inside, Escape closes, focus returns to the
 // opener), confirmations, toasts in a live region, and a keyboard-driven popup menu.
-import { h, icon } from "./dom.js";
+import { byId, h, icon } from "./dom.js";
 import { t } from "./i18n.js";
 
 let counter = 0;
@@ -19,12 +19,13 @@ let counter = 0;
  * onSubmit(value, form) may run work with the dialog open: return false to keep it open
  * (e.g. to show validation messages), anything else closes it with that value.
  * @param {{title: string, body: Node | string, buttons?: DialogButton[], wide?: boolean,
- *   onSubmit?: (value: string, form: HTMLFormElement) => any, focus?: HTMLElement | null}} options
+ *   onSubmit?: (value: string, form: HTMLFormElement) => any, focus?: string}} options
+ *   focus: a selector, inside the dialog, for what gets the focus first
  * @returns {Promise<any>}
  */
 export function modal({ title, body, buttons = [], onSubmit, wide = false, focus }) {
   return new Promise((resolve) => {
-    const opener = document.activeElement;
+    const opener = /** @type {HTMLElement | null} */ (document.activeElement);
     const titleId = `dialog-title-${++counter}`;
     let busy = false;
     const footer = h("footer", { class: "dialog-actions" });
@@ -88,7 +89,9 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
 
     document.body.append(dialog);
     dialog.showModal();
-    const first = (focus && form.querySelector(focus)) || form.querySelector("[autofocus], .dialog-body input, .dialog-body select, .dialog-body textarea");
+    /** @param {string} selector */
+    const find = (selector) => /** @type {HTMLElement | null} */ (form.querySelector(selector));
+    const first = (focus && find(focus)) || find("[autofocus], .dialog-body input, .dialog-body select, .dialog-body textarea");
     (first || footer.querySelector("button") || form).focus();
   });
 }
@@ -124,7 +127,7 @@ export async function confirmDialog({ title, message, confirmLabel, danger = fal
  * @param {{kind?: string, title?: string, message?: string, timeout?: number}} options
  */
 export function toast({ kind = "info", title = "", message = "", timeout }) {
-  const region = document.getElementById("toasts");
+  const region = byId("toasts");
   keepAboveBulkBar(region);
   const item = h(
     "div",
@@ -134,7 +137,7 @@ export function toast({ kind = "info", title = "", message = "", timeout }) {
     h("button", { type: "button", class: "icon-btn", "aria-label": t("action.dismiss"), onclick: () => item.remove() }, icon("close")),
   );
   region.append(item);
-  while (region.children.length > 6) region.firstElementChild.remove();
+  while (region.children.length > 6) region.firstElementChild?.remove();
   const ms = timeout ?? (kind === "error" ? 15000 : 6000);
   if (ms > 0) setTimeout(() => item.remove(), ms);
   return item;

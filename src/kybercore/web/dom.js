@@ -26,6 +26,18 @@ export function h(tag, attrs = {}, ...children) {
   return el;
 }
 
+/**
+ * An element the page's HTML always has (fleet.html). One that is missing is a bug in the
+ * page: say which, rather than fail later on a null.
+ * @param {string} id
+ * @returns {HTMLElement}
+ */
+export function byId(id) {
+  const el = document.getElementById(id);
+  if (!el) throw new Error(`the page has no #${id}`);
+  return el;
+}
+
 /** Set text only when it changed (cheap no-op on the hot path). */
 export function setText(el, text) {
   const value = text ?? "";
