@@ -127,9 +127,15 @@ function progressBar() {
 }
 
 class Card {
+  /** @param {string} id */
   constructor(id) {
     this.id = id;
+    /** @type {Record<string, unknown>} */
     this.memo = {};
+    /** The card's element and its parts (set by the subclass). @type {HTMLElement} */
+    this.el;
+    /** @type {{stale: HTMLElement}} */
+    this.refs;
   }
 
   /** True (and remembered) when `value` differs from the last one seen under `key`. */
