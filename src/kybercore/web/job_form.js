@@ -84,7 +84,9 @@ export async function jobDialog() {
     error,
   );
   const showError = (message, reasons = []) => {
-    error.replaceChildren(h("p", { text: message }), reasons.length ? h("ul", { class: "reason-list" }, reasons.map((r) => h("li", { class: "reason block", text: reasonText(r) }))) : null);
+    const list = h("ul", { class: "reason-list" }, reasons.map((r) => h("li", { class: "reason block", text: reasonText(r) })));
+    // (replaceChildren writes a null as the text "null")
+    error.replaceChildren(h("p", { text: message }), ...(reasons.length ? [list] : []));
     error.hidden = false;
   };
   await modal({
