@@ -191,8 +191,8 @@ export async function temperatureDialog(ids, { sendIt = true } = {}) {
         class: "btn small",
         text: `${t(preset.key)} ${preset.extruder ? `${preset.extruder}/${preset.bed}°` : ""}`.trim(),
         onclick: () => {
-          extruder.querySelector("input").value = String(preset.extruder);
-          bed.querySelector("input").value = String(preset.bed);
+          /** @type {HTMLInputElement} */ (extruder.querySelector("input")).value = String(preset.extruder);
+          /** @type {HTMLInputElement} */ (bed.querySelector("input")).value = String(preset.bed);
         },
       }),
     ),

@@ -270,8 +270,8 @@ export class Tile extends Card {
     setText(r.hotendTarget, targetText(p.extruder));
     setText(r.bed, heaterText(p.bed));
     setText(r.bedTarget, targetText(p.bed));
-    r.hotend.parentElement.classList.toggle("heating", (p.extruder?.target || 0) > 0);
-    r.bed.parentElement.classList.toggle("heating", (p.bed?.target || 0) > 0);
+    /** @type {HTMLElement} */ (r.hotend.parentElement).classList.toggle("heating", (p.extruder?.target || 0) > 0);
+    /** @type {HTMLElement} */ (r.bed.parentElement).classList.toggle("heating", (p.bed?.target || 0) > 0);
     r.gate.update(p, this.el);
     this.updateStale(p, now);
     updateActions(r.actions, p, this.memo);

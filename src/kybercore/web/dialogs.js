@@ -42,6 +42,7 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
       footer,
     );
     const dialog = h("dialog", { class: `dialog${wide ? " wide" : ""}`, "aria-labelledby": titleId }, form);
+    /** @type {HTMLButtonElement | null} */
     let defaultButton = null;
     for (const spec of buttons) {
       const button = h("button", {
@@ -57,7 +58,7 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
     form.addEventListener("submit", async (event) => {
       event.preventDefault();
       if (busy) return;
-      const submitter = event.submitter || defaultButton;
+      const submitter = /** @type {HTMLButtonElement | null} */ (event.submitter) || defaultButton;
       const value = submitter ? submitter.value : "";
       if (!onSubmit) return finish(value);
       busy = true;
@@ -203,10 +204,10 @@ export function openMenu(anchor, items, label) {
   menu.style.left = `${left}px`;
   menu.style.top = `${below ? rect.bottom + 4 : Math.max(8, rect.top - height - 4)}px`;
   anchor.setAttribute("aria-expanded", "true");
-  const entries = () => [...menu.querySelectorAll(".menu-item:not([disabled])")];
+  const entries = () => [.../** @type {NodeListOf<HTMLElement>} */ (menu.querySelectorAll(".menu-item:not([disabled])"))];
   menu.addEventListener("keydown", (event) => {
     const list = entries();
-    const index = list.indexOf(document.activeElement);
+    const index = list.indexOf(/** @type {HTMLElement} */ (document.activeElement));
     const moves = { ArrowDown: index + 1, ArrowUp: index - 1, Home: 0, End: list.length - 1 };
     if (event.key in moves) {
       event.preventDefault();

@@ -65,7 +65,9 @@ export class GateStrip {
     setHidden(this.bad, !awaiting);
     setHidden(this.release, awaiting);
     const operator = can("operator");
-    for (const [button, key] of [[this.good, "good"], [this.bad, "bad"], [this.release, "release"]]) {
+    /** @type {[HTMLButtonElement, string][]} */
+    const buttons = [[this.good, "good"], [this.bad, "bad"], [this.release, "release"]];
+    for (const [button, key] of buttons) {
       setText(button.lastElementChild, t(`gate.${key}`));
       const title = t(`gate.${key}_title`, { name: p.name });
       setAttr(button, "aria-label", title);

@@ -164,9 +164,9 @@ function buildForm(channel) {
   );
   // The URL's examples and the secret follow the kind.
   const sync = () => {
-    const kind = channel?.kind || root.querySelector("input[name=kind]:checked").value;
+    const kind = channel?.kind || /** @type {HTMLInputElement} */ (root.querySelector("input[name=kind]:checked")).value;
     const keep = channel ? ` ${t("nt.form.url_keep")}` : "";
-    targetBox.querySelector(".hint").textContent = t(`nt.form.url_hint_${kind}`) + keep;
+    /** @type {HTMLElement} */ (targetBox.querySelector(".hint")).textContent = t(`nt.form.url_hint_${kind}`) + keep;
     if (!channel) target.placeholder = kind === "webhook" ? "https://" : "ntfy://";
     secretBox.hidden = kind !== "webhook";
   };

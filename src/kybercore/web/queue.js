@@ -157,8 +157,8 @@ class JobRow {
     setText(r.note, note);
     setHidden(r.note, !note);
     const share = (n) => `${(100 * n) / job.quantity}%`;
-    r.bar.children[0].style.width = share(job.done);
-    r.bar.children[1].style.width = share(job.in_flight);
+    /** @type {HTMLElement} */ (r.bar.children[0]).style.width = share(job.done);
+    /** @type {HTMLElement} */ (r.bar.children[1]).style.width = share(job.in_flight);
     setText(r.copies, t("queue.copies", { done: job.done, flight: job.in_flight, left: job.left, n: job.quantity }));
     if (document.activeElement !== r.priority) r.priority.value = String(job.priority);
     r.priority.disabled = !operator || !active;
@@ -170,7 +170,9 @@ class JobRow {
     setText(r.why, t(job.state === "queued" ? "queue.why" : "queue.details"));
     setHidden(r.requeue, job.state !== "blocked");
     setText(r.requeue, t("queue.requeue"));
-    for (const [button, label] of [[r.up, "queue.move_up"], [r.down, "queue.move_down"], [r.cancel, "queue.cancel_named"]]) {
+    /** @type {[HTMLButtonElement, string][]} */
+    const moves = [[r.up, "queue.move_up"], [r.down, "queue.move_down"], [r.cancel, "queue.cancel_named"]];
+    for (const [button, label] of moves) {
       setAttr(button, "aria-label", t(label, { name }));
       setAttr(button, "title", t(label, { name }));
       setHidden(button, !active);

@@ -51,7 +51,7 @@ export function dropZone(onFiles, { multiple = false } = {}) {
     h("span", { class: "drop-hint", text: t("upload.or_choose") }),
   );
   input.addEventListener("change", () => {
-    if (input.files.length) onFiles([...input.files]);
+    if (input.files?.length) onFiles([...input.files]);
     input.value = "";
   });
   zone.addEventListener("dragover", (event) => {
@@ -62,7 +62,7 @@ export function dropZone(onFiles, { multiple = false } = {}) {
   zone.addEventListener("drop", (event) => {
     event.preventDefault();
     zone.classList.remove("over");
-    if (event.dataTransfer.files.length) onFiles([...event.dataTransfer.files]);
+    if (event.dataTransfer?.files.length) onFiles([...event.dataTransfer.files]);
   });
   return { zone, input };
 }
