@@ -8,4 +8,5 @@ scripts/bootstrap.sh --test
 .venv/bin/ruff check src tests bench
 .venv/bin/mypy --strict src
 node_modules/.bin/eslint src/kybercore/web
+node_modules/.bin/tsc -p tsconfig.json
 exec .venv/bin/python -m pytest "$@"

@@ -1,6 +1,6 @@
 // Per-printer actions: confirmation for the drastic ones, the real result or the backend's
 // error, and "confirmation_required" warnings shown to the user before sending again.
-import { api } from "./api.js";
+import { ApiError, api } from "./api.js";
 import { confirmDialog, modal, openMenu, toast } from "./dialogs.js";
 import { h } from "./dom.js";
 import { GATE_ACTIONS, gateAction } from "./gates.js";
@@ -62,12 +62,18 @@ function moreMenu(id, anchor) {
   );
 }
 
-/** Ask for what the action needs, confirm if drastic, send it, report the outcome. */
+/**
+ * Ask for what the action needs, confirm if drastic, send it, report the outcome.
+ * @param {string} id
+ * @param {string} action
+ * @param {Record<string, unknown>} [params]
+ */
 export async function runAction(id, action, params = {}) {
   const name = nameOf(id);
   if (action === "set_temperature") {
-    params = await temperatureDialog([id]);
-    if (!params) return null;
+    const targets = await temperatureDialog([id]);
+    if (!targets) return null;
+    params = targets;
   }
   if (CONFIRM.has(action)) {
     const ok = await confirmDialog({
@@ -112,7 +118,7 @@ export async function send(id, action, params = {}, confirm = false, report = tr
     if (report) succeeded(id, action, params, result);
     return result;
   } catch (error) {
-    if (error.code === "confirmation_required" && !confirm) {
+    if (error instanceof ApiError && error.code === "confirmation_required" && !confirm) {
       if (await confirmWarnings(id, warningsOf(error))) return send(id, action, params, true, report);
       return null;
     }
@@ -185,12 +191,13 @@ export async function temperatureDialog(ids, { sendIt = true } = {}) {
         class: "btn small",
         text: `${t(preset.key)} ${preset.extruder ? `${preset.extruder}/${preset.bed}°` : ""}`.trim(),
         onclick: () => {
-          extruder.querySelector("input").value = String(preset.extruder);
-          bed.querySelector("input").value = String(preset.bed);
+          /** @type {HTMLInputElement} */ (extruder.querySelector("input")).value = String(preset.extruder);
+          /** @type {HTMLInputElement} */ (bed.querySelector("input")).value = String(preset.bed);
         },
       }),
     ),
   );
+  /** @type {{extruder: number | undefined, bed: number | undefined} | null} */
   let params = null;
   const value = await modal({
     title: ids.length === 1 ? t("temp.title_one", { name: nameOf(ids[0]) }) : t("temp.title_many", { n: ids.length }),
@@ -200,8 +207,9 @@ export async function temperatureDialog(ids, { sendIt = true } = {}) {
       { label: t("temp.apply"), value: "apply", kind: "primary" },
     ],
     onSubmit: async (_value, form) => {
+      /** @param {string} name */
       const read = (name) => {
-        const raw = form.elements[name].value.trim();
+        const raw = /** @type {HTMLInputElement} */ (form.elements.namedItem(name)).value.trim();
         return raw === "" ? undefined : Number(raw);
       };
       params = { extruder: read("extruder"), bed: read("bed") };

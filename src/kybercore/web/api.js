@@ -2,13 +2,26 @@
 // backend's {code, message, reasons, fields}; nothing here invents a success.
 import { t } from "./i18n.js";
 
+/**
+ * One finding of a check (ReasonOut), in both languages.
+ * @typedef {{code: string, level: "ok" | "warn" | "block", category?: string, en: string, es: string}} Reason
+ * @typedef {{field: string, en: string, es: string}} FieldProblem one field of a 422 (FieldError)
+ * @typedef {{code?: string, message?: string, reasons?: Reason[], fields?: FieldProblem[]}} ErrorBody
+ */
+
 export class ApiError extends Error {
+  /**
+   * @param {number} status the HTTP status (0: no answer)
+   * @param {ErrorBody | null | undefined} error the answer's {"error": {...}}
+   */
   constructor(status, error) {
     super((error && error.message) || `HTTP ${status}`);
     this.status = status;
     this.code = (error && error.code) || `http_${status}`;
+    /** @type {Reason[]} */
     this.reasons = (error && error.reasons) || [];
     // 422 invalid_input: [{field: "capabilities.material", en, es}] (dotted paths).
+    /** @type {FieldProblem[]} */
     this.fields = (error && error.fields) || [];
   }
 }
@@ -109,6 +122,10 @@ export function queryString(query) {
 /**
  * Upload a G-code file with XMLHttpRequest (fetch cannot report upload progress).
  * onProgress(fraction) is called while the bytes go out. Returns {promise, abort}.
+ * @param {string} id
+ * @param {File} file
+ * @param {{start?: boolean, confirm?: boolean, onProgress?: (fraction: number) => void}} [options]
+ * @returns {Upload}
  */
 export function upload(id, file, { start = false, confirm = false, onProgress } = {}) {
   const form = new FormData();
@@ -121,6 +138,10 @@ export function upload(id, file, { start = false, confirm = false, onProgress } 
 /**
  * Queue a job: its file and options ({quantity, material, tags: [...], ...}; empty values
  * are left out). Returns {promise, abort}, as upload() does.
+ * @param {File} file
+ * @param {Record<string, unknown>} fields
+ * @param {{onProgress?: (fraction: number) => void}} [options]
+ * @returns {Upload}
  */
 export function uploadJob(file, fields, { onProgress } = {}) {
   const form = new FormData();
@@ -133,6 +154,17 @@ export function uploadJob(file, fields, { onProgress } = {}) {
   return sendForm("/api/jobs", form, onProgress);
 }
 
+/**
+ * An upload under way: its answer, and a way to stop it.
+ * @typedef {{promise: Promise<any>, abort: () => void}} Upload
+ */
+
+/**
+ * @param {string} path
+ * @param {FormData} form
+ * @param {((fraction: number) => void) | undefined} onProgress
+ * @returns {Upload}
+ */
 function sendForm(path, form, onProgress) {
   const xhr = new XMLHttpRequest();
   const promise = new Promise((resolve, reject) => {

@@ -125,10 +125,12 @@ export async function bulkAction(action) {
   const ids = [...selection];
   if (!ids.length) return;
   const label = t(`action.${action}`);
+  /** @type {Record<string, unknown>} */
   let params = {};
   if (action === "set_temperature") {
-    params = await temperatureDialog(ids, { sendIt: false });
-    if (!params) return;
+    const targets = await temperatureDialog(ids, { sendIt: false });
+    if (!targets) return;
+    params = targets;
   }
   if (action === "start") {
     const filename = await chooseFile(ids);
@@ -155,6 +157,7 @@ export async function bulkAction(action) {
   const runnable = ids.length - blocked;
   const note = runnable === 0 ? t("bulk.none_can", { n: ids.length }) : blocked ? t("bulk.some_blocked", { n: blocked, ok: runnable }) : warned ? t("bulk.some_warn") : t("bulk.all_ok");
   const summary = h("p", { class: runnable === 0 ? "form-error" : "", text: note });
+  /** @type {import("./dialogs.js").DialogButton[]} */
   const buttons = [{ label: t("action.back"), cancel: true }];
   // Nothing to run when every printer refuses: no button that would only fail N times.
   if (runnable > 0) {

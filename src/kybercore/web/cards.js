@@ -127,9 +127,15 @@ function progressBar() {
 }
 
 class Card {
+  /** @param {string} id */
   constructor(id) {
     this.id = id;
+    /** @type {Record<string, unknown>} */
     this.memo = {};
+    /** The card's element and its parts (set by the subclass). @type {HTMLElement} */
+    this.el;
+    /** @type {{stale: HTMLElement}} */
+    this.refs;
   }
 
   /** True (and remembered) when `value` differs from the last one seen under `key`. */
@@ -264,8 +270,8 @@ export class Tile extends Card {
     setText(r.hotendTarget, targetText(p.extruder));
     setText(r.bed, heaterText(p.bed));
     setText(r.bedTarget, targetText(p.bed));
-    r.hotend.parentElement.classList.toggle("heating", (p.extruder?.target || 0) > 0);
-    r.bed.parentElement.classList.toggle("heating", (p.bed?.target || 0) > 0);
+    /** @type {HTMLElement} */ (r.hotend.parentElement).classList.toggle("heating", (p.extruder?.target || 0) > 0);
+    /** @type {HTMLElement} */ (r.bed.parentElement).classList.toggle("heating", (p.bed?.target || 0) > 0);
     r.gate.update(p, this.el);
     this.updateStale(p, now);
     updateActions(r.actions, p, this.memo);

@@ -3,9 +3,13 @@
 // a graph follows light and dark like the rest of the page; each chart also gets a text
 // summary (aria-label) for screen readers.
 
+/** @type {Promise<UPlotStatic> | null} */
 let loading = null;
 
-/** uPlot, once its script and stylesheet are loaded. */
+/**
+ * uPlot, once its script and stylesheet are loaded.
+ * @returns {Promise<UPlotStatic>}
+ */
 export function loadCharts() {
   if (window.uPlot) return Promise.resolve(window.uPlot);
   if (!loading) {
@@ -16,7 +20,7 @@ export function loadCharts() {
       document.head.append(css);
       const script = document.createElement("script");
       script.src = "/static/vendor/uPlot.iife.min.js";
-      script.addEventListener("load", () => resolve(window.uPlot));
+      script.addEventListener("load", () => resolve(/** @type {UPlotStatic} */ (window.uPlot)));
       script.addEventListener("error", () => {
         loading = null;
         reject(new Error("uPlot did not load"));
@@ -37,6 +41,8 @@ function axis(extra = {}) {
   return { stroke: color("--muted"), grid: { stroke: grid, width: 1 }, ticks: { stroke: grid, width: 1 }, ...extra };
 }
 
+/** @typedef {{chart: UPlotChart, destroy(): void}} Chart */
+
 /** Keep a chart as wide as its box. Returns a function that stops following it. */
 function follow(box, chart, height) {
   const observer = new ResizeObserver(() => {
@@ -47,7 +53,14 @@ function follow(box, chart, height) {
   return () => observer.disconnect();
 }
 
-/** A chart in `box` that tracks its width; {chart, destroy()}. */
+/**
+ * A chart in `box` that tracks its width; {chart, destroy()}.
+ * @param {UPlotStatic} uPlot
+ * @param {HTMLElement} box
+ * @param {{height: number} & Record<string, unknown>} options
+ * @param {(number | null)[][]} data
+ * @returns {Chart}
+ */
 function mount(uPlot, box, options, data) {
   box.replaceChildren();
   const height = options.height;
@@ -65,6 +78,10 @@ function mount(uPlot, box, options, data) {
 /**
  * Lines over time. series: [{label, stroke (CSS variable), dash?}], data: [times (epoch
  * s), ...values] in uPlot's column layout (null: no value there).
+ * @param {HTMLElement} box
+ * @param {{series: {label: string, stroke: string, dash?: boolean}[], data: (number | null)[][],
+ *   height?: number, unit?: string, window?: number, timeLabel?: string}} options
+ * @returns {Promise<Chart>}
  */
 export async function timeChart(box, { series, data, height = 180, unit = "", window = 0, timeLabel = "" }) {
   const uPlot = await loadCharts();
@@ -97,6 +114,11 @@ export async function timeChart(box, { series, data, height = 180, unit = "", wi
  * (CSS variable), values}]; xLabel names the x value in the legend. stacked: each bar
  * stands on the ones before it. time: the labels are epoch seconds (UTC days). format(v)
  * writes a value for the legend and the axis.
+ * @param {HTMLElement} box
+ * @param {{labels: any[], series: {label: string, fill: string, values: (number | null)[]}[],
+ *   xLabel?: string, stacked?: boolean, time?: boolean, height?: number,
+ *   format?: (v: number) => string, max?: number}} options
+ * @returns {Promise<Chart>}
  */
 export async function barChart(box, { labels, series, xLabel = "", stacked = false, time = false, height = 220, format = String, max }) {
   const uPlot = await loadCharts();

@@ -74,7 +74,7 @@ export function showConsole(panel, id) {
     run(shown, script);
   });
   const operator = can("operator");
-  for (const control of form.querySelectorAll("input, button")) control.disabled = !operator;
+  for (const control of /** @type {NodeListOf<HTMLInputElement | HTMLButtonElement>} */ (form.querySelectorAll("input, button"))) control.disabled = !operator;
   const hint = operator ? t("console.hint") : t("session.needs_operator");
   panel.replaceChildren(log, form, h("p", { class: "hint", text: hint }));
   log.scrollTop = log.scrollHeight;

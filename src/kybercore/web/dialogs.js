@@ -1,6 +1,6 @@
 // Accessible modals (native <dialog>: focus kept inside, Escape closes, focus returns to the
 // opener), confirmations, toasts in a live region, and a keyboard-driven popup menu.
-import { h, icon } from "./dom.js";
+import { byId, h, icon } from "./dom.js";
 import { t } from "./i18n.js";
 
 let counter = 0;
@@ -19,12 +19,13 @@ let counter = 0;
  * onSubmit(value, form) may run work with the dialog open: return false to keep it open
  * (e.g. to show validation messages), anything else closes it with that value.
  * @param {{title: string, body: Node | string, buttons?: DialogButton[], wide?: boolean,
- *   onSubmit?: (value: string, form: HTMLFormElement) => any, focus?: HTMLElement | null}} options
+ *   onSubmit?: (value: string, form: HTMLFormElement) => any, focus?: string}} options
+ *   focus: a selector, inside the dialog, for what gets the focus first
  * @returns {Promise<any>}
  */
 export function modal({ title, body, buttons = [], onSubmit, wide = false, focus }) {
   return new Promise((resolve) => {
-    const opener = document.activeElement;
+    const opener = /** @type {HTMLElement | null} */ (document.activeElement);
     const titleId = `dialog-title-${++counter}`;
     let busy = false;
     const footer = h("footer", { class: "dialog-actions" });
@@ -41,6 +42,7 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
       footer,
     );
     const dialog = h("dialog", { class: `dialog${wide ? " wide" : ""}`, "aria-labelledby": titleId }, form);
+    /** @type {HTMLButtonElement | null} */
     let defaultButton = null;
     for (const spec of buttons) {
       const button = h("button", {
@@ -56,7 +58,7 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
     form.addEventListener("submit", async (event) => {
       event.preventDefault();
       if (busy) return;
-      const submitter = event.submitter || defaultButton;
+      const submitter = /** @type {HTMLButtonElement | null} */ (event.submitter) || defaultButton;
       const value = submitter ? submitter.value : "";
       if (!onSubmit) return finish(value);
       busy = true;
@@ -88,7 +90,9 @@ export function modal({ title, body, buttons = [], onSubmit, wide = false, focus
 
     document.body.append(dialog);
     dialog.showModal();
-    const first = (focus && form.querySelector(focus)) || form.querySelector("[autofocus], .dialog-body input, .dialog-body select, .dialog-body textarea");
+    /** @param {string} selector */
+    const find = (selector) => /** @type {HTMLElement | null} */ (form.querySelector(selector));
+    const first = (focus && find(focus)) || find("[autofocus], .dialog-body input, .dialog-body select, .dialog-body textarea");
     (first || footer.querySelector("button") || form).focus();
   });
 }
@@ -124,7 +128,7 @@ export async function confirmDialog({ title, message, confirmLabel, danger = fal
  * @param {{kind?: string, title?: string, message?: string, timeout?: number}} options
  */
 export function toast({ kind = "info", title = "", message = "", timeout }) {
-  const region = document.getElementById("toasts");
+  const region = byId("toasts");
   keepAboveBulkBar(region);
   const item = h(
     "div",
@@ -134,7 +138,7 @@ export function toast({ kind = "info", title = "", message = "", timeout }) {
     h("button", { type: "button", class: "icon-btn", "aria-label": t("action.dismiss"), onclick: () => item.remove() }, icon("close")),
   );
   region.append(item);
-  while (region.children.length > 6) region.firstElementChild.remove();
+  while (region.children.length > 6) region.firstElementChild?.remove();
   const ms = timeout ?? (kind === "error" ? 15000 : 6000);
   if (ms > 0) setTimeout(() => item.remove(), ms);
   return item;
@@ -200,10 +204,10 @@ export function openMenu(anchor, items, label) {
   menu.style.left = `${left}px`;
   menu.style.top = `${below ? rect.bottom + 4 : Math.max(8, rect.top - height - 4)}px`;
   anchor.setAttribute("aria-expanded", "true");
-  const entries = () => [...menu.querySelectorAll(".menu-item:not([disabled])")];
+  const entries = () => [.../** @type {NodeListOf<HTMLElement>} */ (menu.querySelectorAll(".menu-item:not([disabled])"))];
   menu.addEventListener("keydown", (event) => {
     const list = entries();
-    const index = list.indexOf(document.activeElement);
+    const index = list.indexOf(/** @type {HTMLElement} */ (document.activeElement));
     const moves = { ArrowDown: index + 1, ArrowUp: index - 1, Home: 0, End: list.length - 1 };
     if (event.key in moves) {
       event.preventDefault();

@@ -1,6 +1,13 @@
 // Tiny DOM helpers and the inline SVG icons (no icon font: farms run on closed LANs).
 
-/** Create an element: h("button", {class: "btn", onclick}, "text", child). */
+/**
+ * Create an element: h("button", {class: "btn", onclick}, "text", child).
+ * @template {keyof HTMLElementTagNameMap} K
+ * @param {K} tag
+ * @param {Record<string, any>} [attrs]
+ * @param {...any} children
+ * @returns {HTMLElementTagNameMap[K]}
+ */
 export function h(tag, attrs = {}, ...children) {
   const el = document.createElement(tag);
   for (const [key, value] of Object.entries(attrs)) {
@@ -14,7 +21,7 @@ export function h(tag, attrs = {}, ...children) {
     } else if (key === "text") {
       el.textContent = value;
     } else if (key in el && typeof value !== "string") {
-      el[key] = value;
+      /** @type {any} */ (el)[key] = value;
     } else {
       el.setAttribute(key, value === true ? "" : value);
     }
@@ -23,6 +30,18 @@ export function h(tag, attrs = {}, ...children) {
     if (child === null || child === undefined || child === false) continue;
     el.append(child instanceof Node ? child : String(child));
   }
+  return el;
+}
+
+/**
+ * An element the page's HTML always has (fleet.html). One that is missing is a bug in the
+ * page: say which, rather than fail later on a null.
+ * @param {string} id
+ * @returns {HTMLElement}
+ */
+export function byId(id) {
+  const el = document.getElementById(id);
+  if (!el) throw new Error(`the page has no #${id}`);
   return el;
 }
 

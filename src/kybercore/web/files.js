@@ -15,6 +15,8 @@ const META_PARALLEL = 3;
 /** Characters of a file name kept whole when it is cut ("…e_10mm_petg.gcode"). */
 const TAIL = 18;
 let state = null; // {id, panel, files, shown, observer, queue, active, body}
+/** @type {WeakMap<Element, (meta: Record<string, any>) => void>} a file's row -> fills in its metadata */
+const fillers = new WeakMap();
 
 // The printer page's wider list adds what a slicer wrote into each file.
 const SLICER_COLUMNS = [
@@ -233,9 +235,10 @@ function render(count) {
         ),
       ),
     );
-    row._fill = (meta) => fillMeta(s.id, meta, estimate, thumb, slicer);
+    const fill = (meta) => fillMeta(s.id, meta, estimate, thumb, slicer);
+    fillers.set(row, fill);
     const known = s.meta.get(`${file.path}|${file.modified}`);
-    if (known) row._fill(known);
+    if (known) fill(known);
     else s.observer.observe(row);
     return row;
   });
@@ -279,9 +282,9 @@ function pump(s) {
       .then(
         (meta) => {
           if (file) s.meta.set(`${file.path}|${file.modified}`, meta);
-          row._fill?.(meta);
+          fillers.get(row)?.(meta);
         },
-        () => row._fill?.({}),
+        () => fillers.get(row)?.({}),
       )
       .finally(() => {
         s.active -= 1;

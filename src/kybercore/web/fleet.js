@@ -5,7 +5,7 @@ import { alertOperator, initAlerts } from "./alerts.js";
 import { CAMERAS_HASH, showCamerasPage } from "./cameras.js";
 import { initBulk, updateBulkBar } from "./bulk.js";
 import { toast } from "./dialogs.js";
-import { setText } from "./dom.js";
+import { byId, setText } from "./dom.js";
 import { initDensity } from "./density.js";
 import { findPrinters } from "./discovery.js";
 import { initDrawer, onConsoleFrame, openDrawer, relabelDrawer } from "./drawer.js";
@@ -25,7 +25,7 @@ import { printers, subscribe } from "./store.js";
 import { uploadDialog } from "./uploads.js";
 import { initUtilisation, relabelUtilisation } from "./utilisation.js";
 
-const $ = (id) => document.getElementById(id);
+const $ = byId;
 let lastData = null; // when the last frame changed something (for the banner)
 
 function initTheme() {
@@ -33,8 +33,9 @@ function initTheme() {
   const root = document.documentElement;
   const label = () => {
     const dark = root.dataset.theme === "dark";
-    button.setAttribute("aria-label", t(dark ? "theme.to_light" : "theme.to_dark"));
-    button.title = button.getAttribute("aria-label");
+    const text = t(dark ? "theme.to_light" : "theme.to_dark");
+    button.setAttribute("aria-label", text);
+    button.title = text;
     button.replaceChildren(iconFor(dark ? "sun" : "moon"));
   };
   button.addEventListener("click", () => {
@@ -125,8 +126,8 @@ function route() {
   showLedgerPage(page);
   showNotificationsPage(page);
   $("fleet").hidden = page !== "fleet";
-  document.querySelector(".toolbar").hidden = page !== "fleet";
-  for (const link of document.querySelectorAll("[data-page]")) {
+  /** @type {HTMLElement} */ (document.querySelector(".toolbar")).hidden = page !== "fleet";
+  for (const link of /** @type {NodeListOf<HTMLElement>} */ (document.querySelectorAll("[data-page]"))) {
     if (link.dataset.page === page) link.setAttribute("aria-current", "page");
     else link.removeAttribute("aria-current");
   }
@@ -170,7 +171,7 @@ function onStoreChange(change) {
 
 async function main() {
   translateStatic(document);
-  const lang = $("lang");
+  const lang = /** @type {HTMLSelectElement} */ ($("lang"));
   lang.value = getLang();
   lang.addEventListener("change", () => setLang(lang.value));
   initTheme();
@@ -207,7 +208,7 @@ async function main() {
       onDropFiles: (id, files) => uploadDialog([id], files),
     },
   );
-  for (const button of document.querySelectorAll("[data-mode]")) button.addEventListener("click", () => setMode(button.dataset.mode));
+  for (const button of /** @type {NodeListOf<HTMLElement>} */ (document.querySelectorAll("[data-mode]"))) button.addEventListener("click", () => setMode(button.dataset.mode));
   initBulk($("bulk"), [...document.querySelectorAll("[data-select-group]")]);
   initDrawer({
     root: $("drawer"),
@@ -246,7 +247,7 @@ async function main() {
     relabelUtilisation();
   });
   document.addEventListener("keydown", (event) => {
-    const typing = event.target.closest?.("input, textarea, select, [contenteditable]");
+    const typing = /** @type {Element} */ (event.target).closest?.("input, textarea, select, [contenteditable]");
     if (event.key === "/" && !typing && !document.querySelector("dialog[open]")) {
       event.preventDefault();
       $("search").focus();

@@ -85,6 +85,7 @@ export function finish(unix, now = Date.now() / 1000) {
   const midnight = (seconds) => new Date(seconds * 1000).setHours(0, 0, 0, 0);
   const days = Math.round((midnight(unix) - midnight(now)) / 86_400_000);
   if (days === 0) return { day: "", time };
+  /** @type {Intl.DateTimeFormatOptions} */
   const options = days > 0 && days < 7 ? { weekday: "short" } : { day: "numeric", month: "short" };
   return { day: new Intl.DateTimeFormat(getLang(), options).format(unix * 1000), time };
 }

@@ -19,6 +19,7 @@ export function sinceText(iso) {
   const when = new Date(iso);
   if (Number.isNaN(when.getTime())) return "";
   const today = when.toDateString() === new Date().toDateString();
+  /** @type {Intl.DateTimeFormatOptions} */
   const options = today ? { hour: "2-digit", minute: "2-digit" } : { dateStyle: "short", timeStyle: "short" };
   return new Intl.DateTimeFormat(getLang(), options).format(when);
 }
@@ -53,7 +54,7 @@ export class GateStrip {
     this.key = key;
     setAttr(card, "data-gate", state === "available" ? null : state);
     setHidden(this.el, state === "available");
-    if (state === "available") return;
+    if (state === "available" || !gate) return; // no gate: available
     this.el.dataset.gate = state;
     const awaiting = state === "awaiting_clear";
     const since = t("gate.awaiting", { time: sinceText(gate.since) });
@@ -64,7 +65,9 @@ export class GateStrip {
     setHidden(this.bad, !awaiting);
     setHidden(this.release, awaiting);
     const operator = can("operator");
-    for (const [button, key] of [[this.good, "good"], [this.bad, "bad"], [this.release, "release"]]) {
+    /** @type {[HTMLButtonElement, string][]} */
+    const buttons = [[this.good, "good"], [this.bad, "bad"], [this.release, "release"]];
+    for (const [button, key] of buttons) {
       setText(button.lastElementChild, t(`gate.${key}`));
       const title = t(`gate.${key}_title`, { name: p.name });
       setAttr(button, "aria-label", title);

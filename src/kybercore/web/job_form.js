@@ -2,7 +2,7 @@
 // nozzle, a printer, more under "More options"), uploaded with a progress bar. A job no
 // printer could ever print is refused by the backend with the reason per printer, shown
 // here in the UI's language.
-import { uploadJob } from "./api.js";
+import { ApiError, uploadJob } from "./api.js";
 import { modal, toast } from "./dialogs.js";
 import { h } from "./dom.js";
 import * as fmt from "./format.js";
@@ -31,6 +31,7 @@ function suggestions() {
 /** Open the dialog; resolves once it is closed. */
 export async function jobDialog() {
   let file = null;
+  /** @type {import("./api.js").Upload | null} */
   let sending = null;
   const chosen = h("p", { class: "chosen-file", text: t("upload.none_chosen") });
   const { zone } = dropZone((files) => {
@@ -83,7 +84,9 @@ export async function jobDialog() {
     error,
   );
   const showError = (message, reasons = []) => {
-    error.replaceChildren(h("p", { text: message }), reasons.length ? h("ul", { class: "reason-list" }, reasons.map((r) => h("li", { class: "reason block", text: reasonText(r) }))) : null);
+    const list = h("ul", { class: "reason-list" }, reasons.map((r) => h("li", { class: "reason block", text: reasonText(r) })));
+    // (replaceChildren writes a null as the text "null")
+    error.replaceChildren(h("p", { text: message }), ...(reasons.length ? [list] : []));
     error.hidden = false;
   };
   await modal({
@@ -114,15 +117,18 @@ export async function jobDialog() {
         return "added";
       } catch (err) {
         progress.hidden = true;
-        const refused = err.code !== "invalid_input" || !err.reasons.length ? "" : t("jobform.refused");
-        showError(refused || messageOf(err), refused ? err.reasons : []);
+        // Refused by the queue's rules (their reasons listed), or some other failure.
+        const refused = err instanceof ApiError && err.code === "invalid_input" && err.reasons.length ? err.reasons : null;
+        showError(refused ? t("jobform.refused") : messageOf(err), refused || []);
         return false;
       } finally {
         sending = null;
       }
     },
   });
-  sending?.abort(); // closed while uploading
+  // Closed while uploading (onSubmit sets `sending`, which TypeScript's flow analysis
+  // does not follow into the callback: it would take it for still null here).
+  /** @type {import("./api.js").Upload | null} */ (sending)?.abort();
 }
 
 /** The form's values as the API's fields (empty ones left out). */

@@ -1,5 +1,6 @@
 // The ledger's pages, History (#history) and Statistics (#stats): built on first use,
 // refreshed whenever they are shown again, relabelled on a language change.
+import { byId } from "./dom.js";
 import { onLangChange } from "./i18n.js";
 import { initHistory, relabelHistory, showHistory } from "./history.js";
 import { hideStats, initStats, relabelStats, showStats } from "./stats.js";
@@ -11,8 +12,8 @@ let current = null;
 
 /** Show `page` ("history", "stats") or, for any other page, hide both. */
 export function showLedgerPage(page) {
-  const history = document.getElementById("history-view");
-  const stats = document.getElementById("stats-view");
+  const history = byId("history-view");
+  const stats = byId("stats-view");
   if (!built && (page === "history" || page === "stats")) {
     initHistory(history);
     initStats(stats);

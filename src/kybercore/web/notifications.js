@@ -3,7 +3,7 @@
 // Built on first use; relabelled on a language change, re-checked on a role change.
 import { api } from "./api.js";
 import { confirmDialog, toast } from "./dialogs.js";
-import { h, icon, setText } from "./dom.js";
+import { byId, h, icon, setText } from "./dom.js";
 import { messageOf, onLangChange, t } from "./i18n.js";
 import { channelDialog } from "./notify_form.js";
 import { SEVERITIES, kindLabel, loadKinds, selectableKinds } from "./notify_kinds.js";
@@ -22,7 +22,7 @@ const rows = new Map(); // channel id -> ChannelRow
 
 /** Show the page (`page` "notifications") or, for any other page, hide it. */
 export function showNotificationsPage(page) {
-  const root = document.getElementById("notifications-view");
+  const root = byId("notifications-view");
   const show = page === "notifications";
   if (show && !els) build(root);
   root.hidden = !show;
@@ -48,7 +48,9 @@ function refresh() {
   startLog();
 }
 
+/** @param {HTMLElement} root */
 function build(root) {
+  const log = h("section", { class: "nt-section" });
   els = {
     root,
     title: h("h2", { id: "nt-title" }),
@@ -57,9 +59,8 @@ function build(root) {
     channelsTitle: h("h3", { id: "nt-channels-title", tabindex: "-1" }),
     list: h("ul", { class: "nt-channels", "aria-labelledby": "nt-channels-title" }),
     message: h("p", { class: "empty", role: "status" }),
+    logSection: log,
   };
-  const log = h("section", { class: "nt-section" });
-  els.logSection = log;
   const settings = h("section", { class: "nt-section" });
   root.setAttribute("aria-labelledby", "nt-title");
   root.append(

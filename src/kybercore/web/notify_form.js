@@ -164,9 +164,9 @@ function buildForm(channel) {
   );
   // The URL's examples and the secret follow the kind.
   const sync = () => {
-    const kind = channel?.kind || root.querySelector("input[name=kind]:checked").value;
+    const kind = channel?.kind || /** @type {HTMLInputElement} */ (root.querySelector("input[name=kind]:checked")).value;
     const keep = channel ? ` ${t("nt.form.url_keep")}` : "";
-    targetBox.querySelector(".hint").textContent = t(`nt.form.url_hint_${kind}`) + keep;
+    /** @type {HTMLElement} */ (targetBox.querySelector(".hint")).textContent = t(`nt.form.url_hint_${kind}`) + keep;
     if (!channel) target.placeholder = kind === "webhook" ? "https://" : "ntfy://";
     secretBox.hidden = kind !== "webhook";
   };
@@ -242,9 +242,34 @@ function patchBody(channel, v) {
   return body;
 }
 
-/** Add a channel (no argument) or edit one; resolves with the saved channel, or null. */
+/**
+ * A channel as the API shows it (ChannelOut; `secret` only in the answer to a create).
+ * @typedef {object} Channel
+ * @property {number} id
+ * @property {string} name
+ * @property {string} kind "webhook" or "apprise"
+ * @property {string} target masked
+ * @property {boolean} has_secret
+ * @property {{events: string[], printers: string[], locations: string[], tags: string[],
+ *   quiet_hours: {start: string, end: string, allow_critical: boolean} | null,
+ *   language: string, attach_snapshot: boolean, min_role: string}} rules
+ * @property {boolean} enabled
+ * @property {string} created_at
+ * @property {string} created_by
+ * @property {string | null} [updated_at]
+ * @property {string | null} [updated_by]
+ * @property {string | null} [secret]
+ */
+
+/**
+ * Add a channel (no argument) or edit one; resolves with the saved channel, or null.
+ * @param {Channel} [channel]
+ * @returns {Promise<Channel | null>}
+ */
 export async function channelDialog(channel) {
+  /** @type {Channel | null} */
   let saved = null;
+  /** @type {string | null} */
   let secret = null;
   await modal({
     title: channel ? t("nt.form.edit_title", { name: channel.name }) : t("nt.form.add_title"),
@@ -267,8 +292,10 @@ export async function channelDialog(channel) {
           const body = patchBody(channel, values);
           saved = Object.keys(body).length ? await api.updateNotifyChannel(channel.id, body) : channel;
         } else {
-          saved = await api.addNotifyChannel(createBody(values));
-          secret = saved.secret || null;
+          /** @type {Channel} */
+          const created = await api.addNotifyChannel(createBody(values));
+          saved = created;
+          secret = created.secret || null;
         }
       } catch (error) {
         showErrors(form, error);
@@ -277,10 +304,13 @@ export async function channelDialog(channel) {
       return "saved";
     },
   });
-  if (!saved) return null;
-  toast({ kind: "ok", title: saved.name, message: t(channel ? "nt.saved" : "nt.added") });
-  if (secret) await secretDialog(saved.name, secret);
-  return saved;
+  // onSubmit set them (TypeScript's flow analysis does not follow into the callback).
+  const done = /** @type {Channel | null} */ (saved);
+  const shownOnce = /** @type {string | null} */ (secret);
+  if (!done) return null;
+  toast({ kind: "ok", title: done.name, message: t(channel ? "nt.saved" : "nt.added") });
+  if (shownOnce) await secretDialog(done.name, shownOnce);
+  return done;
 }
 
 /** The secret of a new webhook, the one time it can be seen, with a copy button. */

@@ -7,7 +7,7 @@ import { messageOf, t } from "./i18n.js";
 import { clearErrors, showErrors } from "./printer_form.js";
 import { can } from "./session.js";
 
-// [API field, label key, unit key, seconds per unit]
+/** @type {[field: string, label: string, unit: string, scale: number][]} [API field, label key, unit key, seconds per unit] */
 const FIELDS = [
   ["cooldown_s", "nt.set.cooldown", "nt.unit.minutes", 60],
   ["fold_window_s", "nt.set.fold_window", "nt.unit.seconds", 1],
@@ -19,6 +19,13 @@ const FIELDS = [
 
 let els = null;
 let current = null; // the settings as the API last answered them
+
+/** The FIELDS entry of an API field. */
+function fieldOf(name) {
+  const entry = FIELDS.find(([field]) => field === name);
+  if (!entry) throw new Error(`no setting ${name}`);
+  return entry;
+}
 
 /** Build the noise-control form into `root` (a section). */
 export function initSettings(root) {
@@ -61,7 +68,7 @@ export function relabelSettings() {
   setText(els.readonly, t("nt.settings_readonly"));
   setText(els.save, t("nt.settings_save"));
   for (const row of els.rows) {
-    const [, label, unit] = FIELDS.find(([name]) => name === row.name);
+    const [, label, unit] = fieldOf(row.name);
     setText(row.label, t(label));
     setText(row.unit, t(unit));
   }
@@ -83,12 +90,12 @@ export async function loadSettings() {
 }
 
 function toUnit(name, value) {
-  const scale = FIELDS.find(([field]) => field === name)[3];
+  const scale = fieldOf(name)[3];
   return Math.round((value / scale) * 100) / 100;
 }
 
 function fromUnit(name, text) {
-  const scale = FIELDS.find(([field]) => field === name)[3];
+  const scale = fieldOf(name)[3];
   const value = text.trim() === "" ? NaN : Number(text);
   // Left for the backend to refuse with its own message, field by field.
   if (!Number.isFinite(value)) return text;

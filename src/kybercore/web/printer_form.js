@@ -1,7 +1,7 @@
 // Add, edit and remove printers. Validation is the backend's: the per-field problems of its
 // 422 answer go under the fields they name, in the UI's language. The API key is write-only:
 // never shown, never echoed.
-import { api } from "./api.js";
+import { ApiError, api } from "./api.js";
 import { confirmDialog, modal, toast } from "./dialogs.js";
 import { h } from "./dom.js";
 import { fieldText, messageOf, t } from "./i18n.js";
@@ -194,14 +194,15 @@ export async function printerDialog(id) {
           if (Object.keys(body).length) await api.updatePrinter(p.id, body);
           toast({ kind: "ok", title: values.name || p.name, message: t("form.saved") });
         } else {
-          const anyway = Boolean(form.elements.save_anyway?.checked);
+          const saveAnyway = /** @type {HTMLInputElement | null} */ (form.elements.namedItem("save_anyway"));
+          const anyway = Boolean(saveAnyway?.checked);
           const created = await api.addPrinter(createBody(values), { check: !anyway });
           const message = t(anyway ? "form.added_unchecked" : "form.added", { id: created.id });
           toast({ kind: anyway ? "warn" : "ok", title: created.name, message });
         }
         return "saved";
       } catch (error) {
-        if (!p && UNREACHABLE.has(error.code)) offerSaveAnyway(form, error);
+        if (!p && error instanceof ApiError && UNREACHABLE.has(error.code)) offerSaveAnyway(form, error);
         else showErrors(form, error);
         return false;
       }

@@ -2,7 +2,7 @@
 // priority, state and why they wait; drag (or the arrow buttons) to reorder, cancel with a
 // confirmation, pause and resume the whole queue. One row per job, kept by id and updated
 // in place. Live through queue_data.js.
-import { api } from "./api.js";
+import { ApiError, api } from "./api.js";
 import { confirmDialog, toast } from "./dialogs.js";
 import { h, icon, setAttr, setHidden, setText } from "./dom.js";
 import { sinceText } from "./gates.js";
@@ -157,8 +157,8 @@ class JobRow {
     setText(r.note, note);
     setHidden(r.note, !note);
     const share = (n) => `${(100 * n) / job.quantity}%`;
-    r.bar.children[0].style.width = share(job.done);
-    r.bar.children[1].style.width = share(job.in_flight);
+    /** @type {HTMLElement} */ (r.bar.children[0]).style.width = share(job.done);
+    /** @type {HTMLElement} */ (r.bar.children[1]).style.width = share(job.in_flight);
     setText(r.copies, t("queue.copies", { done: job.done, flight: job.in_flight, left: job.left, n: job.quantity }));
     if (document.activeElement !== r.priority) r.priority.value = String(job.priority);
     r.priority.disabled = !operator || !active;
@@ -170,7 +170,9 @@ class JobRow {
     setText(r.why, t(job.state === "queued" ? "queue.why" : "queue.details"));
     setHidden(r.requeue, job.state !== "blocked");
     setText(r.requeue, t("queue.requeue"));
-    for (const [button, label] of [[r.up, "queue.move_up"], [r.down, "queue.move_down"], [r.cancel, "queue.cancel_named"]]) {
+    /** @type {[HTMLButtonElement, string][]} */
+    const moves = [[r.up, "queue.move_up"], [r.down, "queue.move_down"], [r.cancel, "queue.cancel_named"]];
+    for (const [button, label] of moves) {
       setAttr(button, "aria-label", t(label, { name }));
       setAttr(button, "title", t(label, { name }));
       setHidden(button, !active);
@@ -269,7 +271,7 @@ async function cancelJob(job) {
   try {
     await api.cancelJob(job.id);
   } catch (error) {
-    if (error.code !== "confirmation_required") {
+    if (!(error instanceof ApiError) || error.code !== "confirmation_required") {
       toast({ kind: "error", title: t("queue.cancel"), message: messageOf(error) });
       return;
     }

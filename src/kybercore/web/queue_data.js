@@ -4,7 +4,45 @@
 import { api } from "./api.js";
 import { gates } from "./store.js";
 
-/** jobs: in dispatch order; state: GET /api/queue; finished: whether done/cancelled are listed. */
+/**
+ * A job as GET /api/jobs lists it (JobOut in api/queue_models.py).
+ * @typedef {object} Job
+ * @property {number} id
+ * @property {{sha256: string, name: string, size: number, meta: Record<string, any>}} file
+ * @property {number} quantity good copies wanted
+ * @property {number} done copies cleared good
+ * @property {number} in_flight copies printing, or printed and awaiting a clear
+ * @property {number} left copies no printer has yet
+ * @property {number} failures
+ * @property {number} priority higher runs first
+ * @property {number} position
+ * @property {"queued" | "blocked" | "done" | "cancelled"} state
+ * @property {string} reason why it is blocked or cancelled
+ * @property {string | null} not_before
+ * @property {{material: string | null, nozzle: number | null, model: string | null, tags: string[],
+ *   printer: string | null}} requirements
+ * @property {boolean} allow_mismatch
+ * @property {number} max_attempts
+ * @property {string} created_at
+ * @property {string} created_by
+ */
+
+/**
+ * The queue as a whole, GET /api/queue (QueueState).
+ * @typedef {{paused: boolean, queued: number, blocked: number, copies_left: number,
+ *   copies_in_flight: number, awaiting_clear: string[], held: string[]}} QueueState
+ */
+
+/**
+ * A printer's gate, GET /api/gates (GateOut).
+ * @typedef {{printer: string, state: "available" | "awaiting_clear" | "held" | "maintenance",
+ *   reason: string, since: string, attempt_id: number | null, user: string}} Gate
+ */
+
+/**
+ * jobs: in dispatch order; state: GET /api/queue; finished: whether done/cancelled are listed.
+ * @type {{jobs: Job[], state: QueueState | null, finished: boolean, loaded: boolean, error: unknown}}
+ */
 export const queue = { jobs: [], state: null, finished: false, loaded: false, error: null };
 
 const listeners = new Set();

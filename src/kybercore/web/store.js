@@ -4,7 +4,10 @@
 /** id -> printer view, exactly as the backend sent it (deltas merged in). */
 export const printers = new Map();
 
-/** id -> the printer's plate gate in the job queue (queue_data.js keeps it); none: available. */
+/**
+ * id -> the printer's plate gate in the job queue (queue_data.js keeps it); none: available.
+ * @type {Map<string, import("./queue_data.js").Gate>}
+ */
 export const gates = new Map();
 
 /** The filter value that shows the printers whose plate awaits a clear (not a status group). */

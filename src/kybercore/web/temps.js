@@ -13,12 +13,27 @@ const HEATERS = [
   ["heater_bed", "bed", "--accent"],
 ];
 
-let shown = null; // {id, box, data, graph, timer}
+/**
+ * The graph on show: its printer, box, columns (times, then reading and target per heater),
+ * chart and the timer that adds a second.
+ * @typedef {{id: string, box: HTMLElement, data: Columns, graph: Chart | null,
+ *   timer: number | undefined}} Shown
+ * @typedef {import("./charts.js").Chart} Chart
+ * @typedef {[number[], ...(number | null)[][]]} Columns times (epoch s), then the values
+ */
 
-/** Draw printer `id`'s graph into `box` (replacing any other). */
+/** @type {Shown | null} */
+let shown = null;
+
+/**
+ * Draw printer `id`'s graph into `box` (replacing any other).
+ * @param {HTMLElement} box
+ * @param {string} id
+ */
 export async function showTemperatures(box, id) {
   hideTemperatures();
-  const state = { id, box, data: null, graph: null, timer: null };
+  /** @type {Shown} */
+  const state = { id, box, data: [[]], graph: null, timer: undefined };
   shown = state;
   box.hidden = false;
   let history = { series: {} };
@@ -33,9 +48,10 @@ export async function showTemperatures(box, id) {
     { label: t(`temps.${view}`), stroke },
     { label: t(`temps.${view}_target`), stroke, dash: true },
   ]);
-  state.graph = await timeChart(box, { series, data: state.data, height: 170, unit: "°", window: WINDOW, timeLabel: t("temps.time") });
+  const graph = await timeChart(box, { series, data: state.data, height: 170, unit: "°", window: WINDOW, timeLabel: t("temps.time") });
+  state.graph = graph;
   if (shown !== state) {
-    state.graph.destroy();
+    graph.destroy();
     return;
   }
   box.setAttribute("role", "img");
@@ -60,9 +76,12 @@ export function relabelTemperatures() {
 /**
  * The backend's per-heater series on one time axis. A heater sends only changes, so a
  * value holds until its next sample: carry it forward (a null, a break, carries too).
+ * @param {Record<string, {t: number[], temperature: (number | null)[], target: (number | null)[]}>} series
+ * @returns {Columns}
  */
 function merge(series) {
   const times = [...new Set(HEATERS.flatMap(([name]) => series[name]?.t || []))].sort((a, b) => a - b);
+  /** @type {Columns} */
   const columns = [times];
   for (const [name] of HEATERS) {
     const s = series[name] || { t: [], temperature: [], target: [] };
@@ -80,9 +99,10 @@ function merge(series) {
   return columns;
 }
 
+/** @param {Shown} state */
 function tick(state) {
   const p = printers.get(state.id);
-  if (!p) return;
+  if (!p || !state.graph) return;
   const now = Date.now() / 1000;
   const live = p.connection === "online";
   const values = HEATERS.flatMap(([, view]) => {

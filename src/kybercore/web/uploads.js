@@ -15,6 +15,9 @@ const PARALLEL = 4;
  * or {ok: false, uploaded, error, needsConfirm}. With uploaded the file is stored and only
  * its start was refused (the backend answers 201 with started: false and the start's
  * reasons); when that start needs a confirmation, start it with api.act(..., {confirm: true}).
+ * @param {string} id
+ * @param {File} file
+ * @param {{start?: boolean, onProgress?: (fraction: number) => void}} [options]
  */
 export async function uploadTo(id, file, { start = false, onProgress } = {}) {
   let result;
@@ -48,7 +51,7 @@ export function dropZone(onFiles, { multiple = false } = {}) {
     h("span", { class: "drop-hint", text: t("upload.or_choose") }),
   );
   input.addEventListener("change", () => {
-    if (input.files.length) onFiles([...input.files]);
+    if (input.files?.length) onFiles([...input.files]);
     input.value = "";
   });
   zone.addEventListener("dragover", (event) => {
@@ -59,7 +62,7 @@ export function dropZone(onFiles, { multiple = false } = {}) {
   zone.addEventListener("drop", (event) => {
     event.preventDefault();
     zone.classList.remove("over");
-    if (event.dataTransfer.files.length) onFiles([...event.dataTransfer.files]);
+    if (event.dataTransfer?.files.length) onFiles([...event.dataTransfer.files]);
   });
   return { zone, input };
 }
@@ -132,7 +135,7 @@ export async function uploadDialog(ids, initialFiles = []) {
       const delay = start ? Math.max(0, Number(stagger.value) || 0) * 1000 : 0;
       await uploadMany(ids, file, { start, delay, rows });
       finished = true;
-      const submit = form.querySelector("button[type=submit]");
+      const submit = /** @type {HTMLButtonElement} */ (form.querySelector("button[type=submit]"));
       submit.textContent = t("action.done");
       return false;
     },

@@ -11,12 +11,15 @@ import { printers } from "./store.js";
 // a snapshot this often instead.
 const FALLBACK_MS = 2000;
 
-let current = null; // {section, img, timer}
+/** @typedef {{section: HTMLElement, img: HTMLImageElement | null, timer: number | undefined}} Shown */
+/** @type {Shown | null} */
+let current = null;
 
 /** Show printer `id`'s first webcam, streaming, in `section` (hidden when it has none). */
 export async function renderWebcam(section, id) {
   stopWebcam();
-  const mine = { section, img: null, timer: null };
+  /** @type {Shown} */
+  const mine = { section, img: null, timer: undefined };
   current = mine;
   let cams = [];
   try {
