@@ -69,6 +69,9 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
 
     page.get_by_role("button", name="Add job").click()
     dialog = page.get_by_role("dialog", name="Add a job to the queue")
+    # No file yet: the form says so, and only that (no stray "null" after the message).
+    dialog.get_by_role("button", name="Add to queue").click()
+    expect(dialog.locator(".form-error")).to_have_text("Choose a file first.")
     dialog.locator("input[type=file]").set_input_files(str(gcode))
     dialog.get_by_label("Copies").fill("2")
     dialog.get_by_role("combobox", name="Printer").select_option("fleet-a")
