@@ -21,7 +21,9 @@ resource:
 - :mod:`kybercore.api.session`: ``/api/session``, log in and out;
 - :mod:`kybercore.api.audit`: ``/api/audit``, the audit log (admins);
 - :mod:`kybercore.api.ws`: ``/ws``, the browser's live socket;
-- :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation.
+- :mod:`kybercore.api.docs`: ``/docs`` and ``/redoc``, the API's documentation;
+- :mod:`kybercore.api.static`: ``/`` and ``/static/``, the dashboard, gzipped and
+  cache-busted.
 
 Every request passes :class:`~kybercore.api.guard.GuardMiddleware` first; every action
 is recorded in the audit log by :class:`~kybercore.api.recorder.AuditMiddleware`.
@@ -42,8 +44,6 @@ from typing import Any, Final
 import httpx
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, Response
-from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
@@ -76,6 +76,7 @@ from kybercore.api.guard import GuardMiddleware
 from kybercore.api.hosts import HostAllowlist
 from kybercore.api.recorder import AuditMiddleware
 from kybercore.api.security import Access
+from kybercore.api.static import add_web
 from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
@@ -192,12 +193,7 @@ def create_app(
     app.include_router(discovery.router)  # "Find printers" (mDNS)
     add_docs(app)
 
-    @app.get("/", include_in_schema=False)
-    async def index() -> Response:
-        return FileResponse(WEB_DIR / "fleet.html", headers={"Cache-Control": "no-cache"})
-
-    if WEB_DIR.is_dir():
-        app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
+    app.state.web = add_web(app, WEB_DIR)  # the dashboard: gzipped, cache-busted (issue 19)
     return app
 
 

@@ -1,7 +1,8 @@
-// Graphs with uPlot, vendored in /static/vendor/ (no CDN: farms run on closed LANs) and
-// loaded the first time a view draws one. Colours come from the theme's CSS variables, so
-// a graph follows light and dark like the rest of the page; each chart also gets a text
-// summary (aria-label) for screen readers.
+// Graphs with uPlot, vendored in vendor/ (no CDN: farms run on closed LANs) and loaded the
+// first time a view draws one. Found from this module's own address, so it comes from the
+// same versioned /static/v-<token>/ as the page. Colours come from the theme's CSS
+// variables, so a graph follows light and dark like the rest of the page; each chart also
+// gets a text summary (aria-label) for screen readers.
 
 /** @type {Promise<UPlotStatic> | null} */
 let loading = null;
@@ -16,10 +17,10 @@ export function loadCharts() {
     loading = new Promise((resolve, reject) => {
       const css = document.createElement("link");
       css.rel = "stylesheet";
-      css.href = "/static/vendor/uPlot.min.css";
+      css.href = new URL("vendor/uPlot.min.css", import.meta.url).href;
       document.head.append(css);
       const script = document.createElement("script");
-      script.src = "/static/vendor/uPlot.iife.min.js";
+      script.src = new URL("vendor/uPlot.iife.min.js", import.meta.url).href;
       script.addEventListener("load", () => resolve(/** @type {UPlotStatic} */ (window.uPlot)));
       script.addEventListener("error", () => {
         loading = null;
