@@ -81,13 +81,15 @@ class KyberCoreServer:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             if self._proc.poll() is not None:
-                raise AssertionError(f"kybercore {self.command} exited:\n{self.log.read_text()[-3000:]}")
+                tail = self.log.read_text()[-3000:]
+                raise AssertionError(f"kybercore {self.command} exited:\n{tail}")
             try:
                 httpx.get(f"{self.url}/api/session", timeout=1).raise_for_status()
                 return
             except httpx.HTTPError:
                 time.sleep(0.1)  # poll: wait for the server to answer, deadline above
-        raise AssertionError(f"kybercore {self.command} did not answer:\n{self.log.read_text()[-3000:]}")
+        tail = self.log.read_text()[-3000:]
+        raise AssertionError(f"kybercore {self.command} did not answer:\n{tail}")
 
     @property
     def pid(self) -> int:
