@@ -3,19 +3,23 @@ real nats-server and real virtual printers, each stoppable, killable and pausabl
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 
+from kybercore.registry.models import PrinterConfig
+from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
+from kybercore.sim.stack import PrinterStack, free_port
 from tests.helpers import KyberCoreServer
 
 SLOTS = 16
@@ -65,6 +69,39 @@ class WorkerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+SETTLE = 5 * (TTL + TTL / 3)
+"""Ownership settling (start, rebalance): ~TTL + TTL/3, with 5× slack."""
+
+
+@contextlib.contextmanager
+def two_workers_and_a_front(
+    stacks: list[PrinterStack], broker: LocalServer, folder: Path
+) -> Iterator[Cluster]:
+    """``stacks`` as a fleet on NATS: w1 (started first, so it holds slots 0-7 once w2
+    joins), w2, and a front importing their printers.json; stopped after."""
+    printers = [
+        PrinterConfig(
+            id=s.options.name, name=f"Printer {s.options.name[-1].upper()}", model="Virtual",
+            location="Lab", tags=["test", s.options.name], moonraker_url=s.url,
+        )
+        for s in stacks
+    ]  # fmt: skip
+    write_printers(folder / "printers.json", printers)
+    front = KyberCoreServer(
+        folder / "printers.json", free_port(), "--nats", broker.url, "--slots", str(SLOTS),
+        command="front",
+    )  # fmt: skip
+    cluster = Cluster(broker, folder, front)
+    try:
+        w1 = cluster.worker("w1")
+        wait("w1 owns every slot", lambda: len(w1.owned()) == SLOTS, SETTLE)
+        cluster.worker("w2")
+        front.start()
+        yield cluster
+    finally:
+        cluster.close()
 
 
 class Cluster:

@@ -13,20 +13,15 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.registry.models import PrinterConfig
-from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
 from kybercore.scale.slots import slot_of
-from kybercore.sim.stack import PrinterStack, free_port
-from tests.helpers import KyberCoreServer
-from tests.scale.cluster import SLOTS, TTL, Cluster, wait
+from kybercore.sim.stack import PrinterStack
+from tests.scale.cluster import SETTLE, SLOTS, TTL, Cluster, two_workers_and_a_front, wait
 from tests.scale.replay import no_overlap
 
 # A dead worker's printers are fresh again within TTL + TTL/3 + a Moonraker connect; the
 # issue's promise is 10 s at TTL 3. Not slackened: it is the product's promise.
 FRESH_AGAIN = 10.0
-SETTLE = 5 * (TTL + TTL / 3)
-"""Ownership settling (start, rebalance): ~TTL + TTL/3, with 5× slack."""
 AT_ONCE = 2.5
 """An answer "at once": no timeout involved (5× a busy machine's half second)."""
 
@@ -35,24 +30,8 @@ AT_ONCE = 2.5
 def cluster(
     fleet_stacks: list[PrinterStack], nats_server: LocalServer, tmp_path: Path
 ) -> Iterator[Cluster]:
-    printers = [
-        PrinterConfig(id=s.options.name, name=s.options.name, moonraker_url=s.url)
-        for s in fleet_stacks
-    ]
-    write_printers(tmp_path / "printers.json", printers)
-    front = KyberCoreServer(
-        tmp_path / "printers.json", free_port(), "--nats", nats_server.url,
-        "--slots", str(SLOTS), command="front",
-    )  # fmt: skip
-    started = Cluster(nats_server, tmp_path, front)
-    try:
-        w1 = started.worker("w1")
-        wait("w1 owns every slot", lambda: len(w1.owned()) == SLOTS, SETTLE)
-        started.worker("w2")
-        front.start()
+    with two_workers_and_a_front(fleet_stacks, nats_server, tmp_path) as started:
         yield started
-    finally:
-        started.close()
 
 
 def owner(cluster: Cluster, printer_id: str) -> str:

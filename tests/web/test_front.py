@@ -1,0 +1,61 @@
+"""The dashboard against a front on NATS (2 ingest workers) behaves as against ``serve``:
+the same tiles, live, and actions that reach the printers through their workers."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from playwright.sync_api import Page, expect
+
+from kybercore.scale.broker import LocalServer
+from kybercore.sim.stack import PrinterStack
+from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
+from tests.web.support import open_fleet, tile
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture
+def cluster(fleet_stacks: list[PrinterStack], tmp_path: Path) -> Iterator[Cluster]:
+    broker = LocalServer(tmp_path / "nats")
+    broker.start()
+    try:
+        with two_workers_and_a_front(fleet_stacks, broker, tmp_path) as started:
+            wait("every printer fresh", lambda: started.all_fresh(len(fleet_stacks)), 60)
+            yield started
+    finally:
+        broker.close()
+
+
+def test_the_overview_on_a_front_is_live_and_acts(
+    new_page: Callable[..., Page], cluster: Cluster
+) -> None:
+    page = new_page()
+    open_fleet(page, cluster.front.url)
+    for printer_id, name in (
+        ("fleet-a", "Printer A"),
+        ("fleet-b", "Printer B"),
+        ("fleet-c", "Printer C"),
+    ):
+        card = tile(page, printer_id)
+        expect(card.locator(".name")).to_have_text(name)
+        expect(card.locator(".meta")).to_have_text("Virtual · Lab")
+        expect(card.locator(".pill")).to_have_text("Ready")
+        expect(card.locator(".badge.conn")).to_have_text("Online")
+        expect(card.locator(".badge.klippy")).to_have_text("Klipper ready")
+    expect(page.locator(".count-chip[data-group=ready] strong")).to_have_text("3")
+
+    # An action through the front runs on the printer's worker; the tile follows.
+    url = f"{cluster.front.url}/api/printers/fleet-c/actions/set_temperature"
+    answer = httpx.post(url, json={"extruder": 60}, timeout=30)
+    assert answer.status_code == 200, answer.text
+    hotend = tile(page, "fleet-c").locator(".temp").first
+    expect(hotend.locator(".target")).to_have_text("/ 60°")
+    expect(hotend).to_have_class(re.compile(r"\bheating\b"))
+    answer = httpx.post(url, json={"extruder": 0}, timeout=30)
+    assert answer.status_code == 200, answer.text
+    expect(hotend).not_to_have_class(re.compile(r"\bheating\b"))
