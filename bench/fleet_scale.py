@@ -38,6 +38,7 @@ import orjson
 from rich.console import Console
 
 from bench import procs, report
+from bench.cluster import kybercore_cluster
 from bench.fleet_reader import FleetReader, ReadFailed
 
 # kybercore ships no py.typed marker; mypy sees it as an untyped installed package.
@@ -74,16 +75,17 @@ async def _idle_rss(work: Path, src: Path | None) -> int:
     path.parent.mkdir()
     write_printers(path, [])
     log = work / "idle" / "kybercore.log"
-    async with kybercore(path, log, procs.free_port(), src) as (process, http):
+    async with kybercore(path, log, procs.free_port(), src) as (pids, http):
         await _wait_for(http, 0, lambda view: True, _limit(0))
-        return procs.rss_kib(process.pid)
+        return procs.rss_kib(pids["serve"])
 
 
 @contextlib.asynccontextmanager
 async def kybercore(
     printers_file: Path, log: Path, port: int, src: Path | None
-) -> AsyncIterator[tuple[asyncio.subprocess.Process, httpx.AsyncClient]]:
-    """``kybercore serve`` on ``port`` in a subprocess, and an HTTP client pointed at it.
+) -> AsyncIterator[tuple[dict[str, int], httpx.AsyncClient]]:
+    """``kybercore serve`` on ``port`` in a subprocess (``{"serve": pid}``), and an HTTP
+    client pointed at it.
 
     ``src``: run the ``kybercore`` package found there instead of the installed one.
     """
@@ -96,7 +98,7 @@ async def kybercore(
                 base_url=f"http://127.0.0.1:{port}", trust_env=False, timeout=REQUEST_TIMEOUT
             ) as http,
         ):
-            yield process, http
+            yield {"serve": process.pid}, http
 
 
 def _online(view: dict[str, Any]) -> bool:
@@ -132,7 +134,7 @@ def _durations(views: list[dict[str, Any]]) -> dict[str, int]:
 
 
 async def _measure(
-    pids: tuple[int, int],
+    pids: tuple[dict[str, int], int],
     http: httpx.AsyncClient,
     ws_url: str,
     fleet: tuple[int, int],
@@ -140,8 +142,8 @@ async def _measure(
     work: Path,
 ) -> dict[str, Any]:
     """The measured window: browsers listening, the fleet view polled, CPU and RSS read.
-    ``pids``: KyberCore's and the load generator's."""
-    pid, loadgen_pid = pids
+    ``pids``: KyberCore's processes by role, and the load generator's."""
+    mine, loadgen_pid = pids
     printers, clients = fleet
     out = work / "browsers.json"
     # Every browser first gets a snapshot of the whole fleet (~1 KB per printer).
@@ -154,7 +156,7 @@ async def _measure(
         # (The browsers process exits at the end of the window; it reports its own.)
         shares = {"loadgen": loadgen_pid, "harness": os.getpid()}
         others = {name: procs.cpu_seconds(p) for name, p in shares.items()}
-        cpu = procs.cpu_seconds(pid)
+        each = {role: procs.cpu_seconds(p) for role, p in mine.items()}
         view_times: list[float] = []
         polls: list[tuple[float, dict[str, int]]] = []
         failures = 0
@@ -175,16 +177,18 @@ async def _measure(
                 polls.append((sent, _durations(orjson.loads(body))))
             await asyncio.sleep(max(0.0, VIEW_POLL_SECONDS - (time.monotonic() - sent)))
         await reader.close()
-        cpu = procs.cpu_seconds(pid) - cpu
+        each = {role: procs.cpu_seconds(p) - each[role] for role, p in mine.items()}
+        cpu = sum(each.values())
         cpu_window = time.monotonic() - started
         others = {name: procs.cpu_seconds(p) - others[name] for name, p in shares.items()}
-        rss = procs.rss_kib(pid)
+        rss = sum(procs.rss_kib(p) for p in mine.values())
         await asyncio.wait_for(browsers.wait(), connect)
     received = orjson.loads(out.read_bytes())
     measured = {
         "window": (started, time.monotonic()),
         "ingest_events_per_s": None,
         "cpu_seconds": cpu,
+        "cpu_seconds_by_process": each,
         "cpu_window": cpu_window,
         "cores_busy": {
             "kybercore": round(cpu / cpu_window, 2),
@@ -256,9 +260,10 @@ async def _bulk_pause(http: httpx.AsyncClient, ids: list[str]) -> dict[str, Any]
 
 
 async def run(
-    printers: int, clients: int, seconds: float, src: Path | None = None
+    printers: int, clients: int, seconds: float, src: Path | None = None, workers: int = 0
 ) -> dict[str, Any]:
-    """One full benchmark run; returns the figures (see :mod:`bench.report`)."""
+    """One full benchmark run; returns the figures (see :mod:`bench.report`). With
+    ``workers``, KyberCore runs distributed (:mod:`bench.cluster`) instead of ``serve``."""
     load = os.getloadavg()
     ids = [f"p{index:05d}" for index in range(printers)]
     with tempfile.TemporaryDirectory(prefix="kybercore-bench-") as tmp:
@@ -282,14 +287,19 @@ async def run(
             log = work / "kybercore.log"
             measured: dict[str, Any] | None = None
             pause = None
-            async with kybercore(printers_file, log, port, src) as (process, http):
+            launch = (
+                kybercore_cluster(printers_file, work, port, workers, src, REQUEST_TIMEOUT)
+                if workers
+                else kybercore(printers_file, log, port, src)
+            )
+            async with launch as (kybercore_pids, http):
                 online = await _wait_for(http, printers, _online, 2 * _limit(printers))
                 settled = await _wait_for(http, printers, _settled, 2 * _limit(printers))
                 # Measuring a KyberCore still busy starting up would time its start-up.
                 if settled is not None:
                     ws_url = f"ws://127.0.0.1:{port}/ws"
                     fleet = (printers, clients)
-                    pids = (process.pid, loadgen.pid)
+                    pids = (kybercore_pids, loadgen.pid)
                     measured = await _measure(pids, http, ws_url, fleet, seconds, work)
                     pause = await _bulk_pause(http, ids)
             await procs.command(loadgen, f"dump {work / 'sent.json'}", _limit(printers))
@@ -299,6 +309,7 @@ async def run(
             "printers": printers,
             "clients": clients,
             "seconds": seconds,
+            "workers": workers,
             "kybercore_src": str(src) if src else "installed",
         },
         "host": {
@@ -357,6 +368,13 @@ def _figures(
         "cpu_seconds_per_1000_events": None
         if ingest is None
         else round(measured["cpu_seconds"] / (ingest * measured["cpu_window"]) * 1000, 4),
+        # Per process (serve; or each worker, the front and nats-server): what it costs.
+        "cpu_seconds_per_1000_events_by_process": None
+        if ingest is None
+        else {
+            role: round(used / (ingest * measured["cpu_window"]) * 1000, 4)
+            for role, used in measured["cpu_seconds_by_process"].items()
+        },
         "browsers": measured["browsers"],
         "cores_busy": measured["cores_busy"],
     }
@@ -377,6 +395,13 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--results-dir", type=Path, default=RESULTS_DIR)
     parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="also run KyberCore on NATS with this many ingest workers and one front, after "
+        "the single process, on the same load (side by side in one report)",
+    )
+    parser.add_argument(
         "--kybercore-src",
         type=Path,
         help="benchmark the kybercore package under this folder (e.g. a patched copy's src/)",
@@ -384,11 +409,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.printers < 1 or args.clients < 1 or args.seconds <= 0:
         parser.error("--printers and --clients must be >= 1, --seconds > 0")
-    results = asyncio.run(
-        _cancel_on_sigterm(run(args.printers, args.clients, args.seconds, args.kybercore_src))
-    )
-    report.show(results, Console())
-    print(f"results: {report.write(results, args.results_dir)}")
+    modes = [0, args.workers] if args.workers else [0]
+    for workers in modes:
+        results = asyncio.run(
+            _cancel_on_sigterm(
+                run(args.printers, args.clients, args.seconds, args.kybercore_src, workers)
+            )
+        )
+        report.show(results, Console())
+        print(f"results: {report.write(results, args.results_dir)}")
 
 
 if __name__ == "__main__":

@@ -120,6 +120,7 @@ _ROWS = (
     ("RSS per printer (KiB)", ("rss_kib_per_printer",)),
     ("KyberCore CPU (cores busy)", ("cpu_cores",)),
     ("CPU s per 1,000 events", ("cpu_seconds_per_1000_events",)),
+    ("… per process", ("cpu_seconds_per_1000_events_by_process",)),
     ("browser frames / resyncs", ("browsers",)),
     ("cores busy: KyberCore / load gen. / browsers / harness", ("cores_busy",)),
 )
@@ -137,6 +138,7 @@ def _cell(value: Any) -> str:
         if "settled" in value:
             settled = _cell(value["settled"]) if value["settled"] else f"not in {value['limit']:g}"
             return f"{_cell(value['online'])} / {settled}"
+        return ", ".join(f"{key} {_cell(item)}" for key, item in value.items())
     if isinstance(value, float):
         return f"{value:,.3g}" if value < 10 else f"{value:,.0f}"
     return "—" if value is None else str(value)
@@ -145,8 +147,10 @@ def _cell(value: Any) -> str:
 def show(results: Mapping[str, Any], console: Console) -> None:
     """Print the figures and the goals as a table."""
     params = results["params"]
+    workers = params.get("workers") or 0
+    mode = f"NATS, {workers} workers + 1 front" if workers else "one process (serve)"
     table = Table(
-        title=f"KyberCore fleet scale: {params['printers']:,} printers, "
+        title=f"KyberCore fleet scale, {mode}: {params['printers']:,} printers, "
         f"{params['clients']} browsers, {params['seconds']:g} s "
         "(LOAD GENERATOR — not Moonraker)"
     )

@@ -35,6 +35,7 @@ def test_fleet_scale_runs_and_writes_sane_results(tmp_path: Path) -> None:
         "printers": 50,
         "clients": 2,
         "seconds": 3.0,
+        "workers": 0,
         "kybercore_src": "installed",
     }
     assert results["startup_seconds"]["settled"] is not None
@@ -47,3 +48,23 @@ def test_fleet_scale_runs_and_writes_sane_results(tmp_path: Path) -> None:
     assert results["rss_kib"] > results["idle_rss_kib"] > 0
     assert results["cpu_seconds_per_1000_events"] > 0
     assert results["goals"] == []  # goals are set at N = 1,000 and 5,000 only
+
+
+@pytest.mark.timeout(240)
+def test_fleet_scale_runs_distributed_beside_one_process(tmp_path: Path) -> None:
+    args = ["--printers", "20", "--clients", "2", "--seconds", "3", "--workers", "2"]
+    run = subprocess.run(
+        [sys.executable, "-m", "bench.fleet_scale", *args, "--results-dir", str(tmp_path)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=230,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    runs = [json.loads(p.read_text()) for p in sorted(tmp_path.glob("fleet_scale-20-*.json"))]
+    assert sorted(r["params"]["workers"] for r in runs) == [0, 2]
+    distributed = next(r for r in runs if r["params"]["workers"] == 2)
+    assert distributed["ingest_events_per_s"] > 0
+    assert distributed["bulk_pause"]["ok"] == 20  # actions reach every printer's worker
+    by_process = distributed["cpu_seconds_per_1000_events_by_process"]
+    assert set(by_process) == {"nats", "w1", "w2", "front"}
