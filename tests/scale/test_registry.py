@@ -6,11 +6,13 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from nats.js.errors import KeyNotFoundError
+from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.registry import KvRegistry
+from kybercore.scale.registry import STORED, KvRegistry
 
 
 async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) -> None:
@@ -48,5 +50,31 @@ async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) 
             while not seen or seen[-1] != ["p-2"]:
                 await asyncio.sleep(0.05)  # poll the watcher's callbacks, deadline above
         watcher.cancel()
+    finally:
+        await nc.close()
+
+
+async def test_api_keys_live_apart_and_only_workers_read_them(nats_server: LocalServer) -> None:
+    nc = await connect(nats_server.url, "test")
+    try:
+        front, worker = KvRegistry(), KvRegistry(read_keys=True)
+        await front.open(nc)
+        await worker.open(nc)
+        new = PrinterCreate(name="Keyed", moonraker_url="http://10.0.0.7", api_key="s3cret-key")
+        added = await front.add(new)
+        entry = await front.kv.get(f"p.{added.id}")
+        assert entry.value is not None
+        assert b"s3cret" not in entry.value  # the registry bucket never holds the key
+        assert (await front.secrets.get(f"p.{added.id}")).value == b"s3cret-key"
+        assert (await front.printers())[0].api_key == STORED
+        assert (await worker.printers())[0].api_key == SecretStr("s3cret-key")
+        # An edit that does not touch the key keeps it; a move to another server needs it.
+        await front.update(added.id, PrinterUpdate(name="Renamed"))
+        assert (await worker.printers())[0].api_key == SecretStr("s3cret-key")
+        with pytest.raises(InvalidInput, match="API key again"):
+            await front.update(added.id, PrinterUpdate(moonraker_url="http://10.0.0.8"))
+        await front.remove(added.id)
+        with pytest.raises(KeyNotFoundError):
+            await front.secrets.get(f"p.{added.id}")
     finally:
         await nc.close()

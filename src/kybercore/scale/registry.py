@@ -9,6 +9,12 @@ two fronts editing one printer at once cannot both win: the second gets a confli
 Workers and fronts :meth:`KvRegistry.watch` the bucket: the whole list at start, then every
 change. ``printers.json`` is the import and export format (``kybercore front
 --printers-file``).
+
+Moonraker API keys are not in ``kc_registry`` but in ``kc_secrets`` (same key names): the
+registry entry only says whether one is set. Workers read the keys (they call Moonraker);
+fronts write them and never need to read them, so a deployment can deny fronts' accounts
+the reads of that bucket (``$JS.API.DIRECT.GET.KV_kc_secrets.>``). In a front's copy a set
+key is the placeholder :data:`STORED`.
 """
 
 from __future__ import annotations
@@ -21,8 +27,9 @@ from collections.abc import Callable
 from typing import Final
 
 from nats.aio.client import Client
-from nats.js.errors import KeyWrongLastSequenceError, NoKeysError
+from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
 from nats.js.kv import KeyValue
+from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected
 from kybercore.registry import changes
@@ -32,7 +39,10 @@ from kybercore.scale.wire import dumps, loads
 log = logging.getLogger(__name__)
 
 BUCKET: Final = "kc_registry"
+SECRETS: Final = "kc_secrets"
 PREFIX: Final = "p."
+STORED: Final = SecretStr("stored-in-kc_secrets")
+"""A front's stand-in for an API key it does not read."""
 
 OnPrinters = Callable[[list[PrinterConfig]], None]
 
@@ -62,19 +72,55 @@ def _conflict(printer_id: str) -> ActionRejected:
 class KvRegistry:
     """The fleet's printers in the ``kc_registry`` bucket."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, read_keys: bool = False) -> None:
+        """``read_keys``: fill in the API keys (workers); else :data:`STORED` (fronts)."""
         self._kv: KeyValue | None = None
+        self._secrets: KeyValue | None = None
+        self._read_keys = read_keys
 
     async def open(self, nc: Client) -> None:
-        """Open (or create) the bucket; file storage, so it outlives a broker restart."""
+        """Open (or create) the buckets; file storage, so they outlive a broker restart."""
         js = nc.jetstream()
         self._kv = await js.create_key_value(bucket=BUCKET, history=10)
+        self._secrets = await js.create_key_value(bucket=SECRETS, history=1)
 
     @property
     def kv(self) -> KeyValue:
-        """The bucket (after :meth:`open`)."""
+        """The registry bucket (after :meth:`open`)."""
         assert self._kv is not None, "open() first"
         return self._kv
+
+    @property
+    def secrets(self) -> KeyValue:
+        """The API keys' bucket (after :meth:`open`)."""
+        assert self._secrets is not None, "open() first"
+        return self._secrets
+
+    async def _decode(self, value: bytes) -> PrinterConfig:
+        data = loads(value)
+        key_set = bool(data.pop("api_key_set", False))
+        config = PrinterConfig.model_validate(data)
+        if not key_set:
+            return config
+        key = STORED
+        if self._read_keys:
+            try:
+                stored = (await self.secrets.get(_key(config.id))).value
+                key = SecretStr(stored.decode()) if stored else STORED
+            except KeyNotFoundError:
+                log.warning("registry: %s has an API key set but none stored", config.id)
+        return config.model_copy(update={"api_key": key})
+
+    async def _store_key(self, config: PrinterConfig, changed: bool = True) -> bytes:
+        """Write the key (when it ``changed``) to kc_secrets; the registry entry's bytes."""
+        if changed and config.api_key is not None and config.api_key != STORED:
+            await self.secrets.put(_key(config.id), config.api_key.get_secret_value().encode())
+        elif changed and config.api_key is None:
+            with contextlib.suppress(KeyNotFoundError):
+                await self.secrets.delete(_key(config.id))
+        data = config.to_file_dict()
+        data["api_key_set"] = data.pop("api_key") is not None
+        return dumps(data)
 
     async def _entries(self) -> dict[str, tuple[PrinterConfig, int]]:
         """Every printer with its key's revision."""
@@ -86,10 +132,10 @@ class KvRegistry:
         for key in keys:
             if not key.startswith(PREFIX):
                 continue
-            with contextlib.suppress(Exception):  # deleted between keys() and get()
+            with contextlib.suppress(KeyNotFoundError):  # deleted between keys() and get()
                 entry = await self.kv.get(key)
                 if entry.value:
-                    config = PrinterConfig.model_validate(loads(entry.value))
+                    config = await self._decode(entry.value)
                     found[config.id] = (config, entry.revision or 0)
         return found
 
@@ -103,7 +149,7 @@ class KvRegistry:
         printers = await self.printers()
         printer = changes.add_printer(printers, new)
         try:
-            await self.kv.create(_key(printer.id), dumps(printer.to_file_dict()))
+            await self.kv.create(_key(printer.id), await self._store_key(printer))
         except KeyWrongLastSequenceError:
             raise _conflict(printer.id) from None
         return printer
@@ -114,7 +160,7 @@ class KvRegistry:
         printers = fleet_order([config for config, _ in entries.values()])
         updated = changes.update_printer(printers, printer_id, patch)
         try:
-            value = dumps(updated.to_file_dict())
+            value = await self._store_key(updated, changed="api_key" in patch.model_fields_set)
             await self.kv.update(_key(printer_id), value, last=entries[printer_id][1])
         except KeyWrongLastSequenceError:
             raise _conflict(printer_id) from None
@@ -128,6 +174,8 @@ class KvRegistry:
             await self.kv.delete(_key(printer_id), last=entries[printer_id][1])
         except KeyWrongLastSequenceError:
             raise _conflict(printer_id) from None
+        with contextlib.suppress(KeyNotFoundError):
+            await self.secrets.delete(_key(printer_id))
         return removed
 
     async def import_if_empty(self, printers: list[PrinterConfig]) -> int:
@@ -136,7 +184,7 @@ class KvRegistry:
             return 0
         for printer in printers:
             with contextlib.suppress(KeyWrongLastSequenceError):  # another front won
-                await self.kv.create(_key(printer.id), dumps(printer.to_file_dict()))
+                await self.kv.create(_key(printer.id), await self._store_key(printer))
         return len(printers)
 
     async def watch(self, on_change: OnPrinters) -> None:
@@ -162,7 +210,7 @@ class KvRegistry:
                     current.pop(printer_id, None)
                 else:
                     try:
-                        current[printer_id] = PrinterConfig.model_validate(loads(entry.value))
+                        current[printer_id] = await self._decode(entry.value)
                     except ValueError as exc:
                         log.warning("registry: printer %s skipped: %s", printer_id, exc)
                         continue

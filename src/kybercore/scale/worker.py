@@ -78,7 +78,7 @@ class Worker:
         self.worker_id = worker_id
         self.slots = slots
         self._grace = grace
-        self.registry = KvRegistry()
+        self.registry = KvRegistry(read_keys=True)
         # Never read: the worker's printers come from the bucket, applied by _reconcile.
         unused = PrinterRegistry(folder / "printers.json")
         self.service = FleetService(
