@@ -1,6 +1,7 @@
 """Spoolman through each printer's Moonraker ([spoolman]): the active spool on the printer's
-view, its remaining weight refusing a start that needs more, and the queue saying why it
-skips the printer. Real Moonraker + Klippy; Spoolman itself is a fake (tests/fake_spoolman.py
+view and in the spool map (GET /api/spools), its remaining weight refusing a start that
+needs more, the queue saying why it skips the printer and dispatching as soon as a fuller
+spool is set. Real Moonraker + Klippy; Spoolman itself is a fake (tests/fake_spoolman.py
 says why)."""
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from collections.abc import Callable, Iterator
 import httpx
 import pytest
 
+from kybercore.core.spools import LOW_FILAMENT_G
+from kybercore.jobs.dispatcher import TICK_SECONDS as DISPATCHER_TICK
 from kybercore.sim.stack import PrinterStack
 from tests.api.conftest import StartEdge, add_printer
 from tests.fake_spoolman import FakeSpoolman, printer_with_spoolman, spool
@@ -64,7 +67,7 @@ def test_the_spool_is_shown_and_too_little_filament_refuses_a_start(
     wait_until(lambda: view(server.url)["spool"] is not None, timeout=30, what="the spool")
     assert view(server.url)["spool"] == {
         "id": NEARLY_EMPTY, "name": "Acme Basic PLA", "material": "PLA",
-        "color_hex": "1E88E5", "remaining_g": 0.5,
+        "color_hex": "1E88E5", "remaining_g": 0.5, "low": True,
     }  # fmt: skip
     uploaded = httpx.post(
         f"{server.url}/api/printers/spools/files",
@@ -92,9 +95,9 @@ def test_the_spool_is_shown_and_too_little_filament_refuses_a_start(
     assert job.status_code == 201, job.text
     job_id = job.json()["id"]
     why = httpx.get(f"{server.url}/api/jobs/{job_id}/why", timeout=30).json()
-    assert any("0.5 g left" in line["en"] for line in why), why
-    cancelled = httpx.delete(f"{server.url}/api/jobs/{job_id}", params={"confirm": "true"})
-    assert cancelled.status_code == 200, cancelled.text
+    assert [line["code"] for line in why] == ["not_enough_filament"], why
+    assert "0.5 g left" in why[0]["en"]
+    assert job_state(server.url, job_id)["in_flight"] == 0
 
     # Another spool set active (Mainsail, KlipperScreen): KyberCore hears it at once.
     set_active(spool_printer, FULL)
@@ -103,5 +106,47 @@ def test_the_spool_is_shown_and_too_little_filament_refuses_a_start(
         f"{server.url}/api/printers/spools/actions/start/check",
         json={"filename": SAMPLE.name},
         timeout=30,
-    ).json()
-    assert "not_enough_filament" not in [r["code"] for r in check["reasons"]]
+    )
+    assert "not_enough_filament" not in [r["code"] for r in check.json()["reasons"]]
+    # ...and so does the queue: the new spool replans at once, not at the slow tick (30 s).
+    wait_until(
+        lambda: job_state(server.url, job_id)["in_flight"] == 1,
+        timeout=DISPATCHER_TICK / 2,
+        what="the job dispatched on the fuller spool",
+    )
+
+
+def job_state(server_url: str, job_id: int) -> dict[str, object]:
+    body: dict[str, object] = httpx.get(f"{server_url}/api/jobs/{job_id}", timeout=30).json()
+    return body
+
+
+def test_the_spool_map_names_each_spool_with_its_printer_and_the_printers_without(
+    edge_server: StartEdge, spool_printer: PrinterStack, printer: PrinterStack
+) -> None:
+    set_active(spool_printer, NEARLY_EMPTY)
+    server, _ = edge_server()
+    add_printer(server, "spools", spool_printer.url)
+    add_printer(server, "plain", printer.url)  # no [spoolman] in its moonraker.conf
+
+    def spools() -> dict[str, object]:
+        answer = httpx.get(f"{server.url}/api/spools", timeout=30)
+        assert answer.status_code == 200, answer.text
+        body: dict[str, object] = answer.json()
+        return body
+
+    wait_until(lambda: bool(spools()["spools"]), timeout=30, what="the spool map")
+    wait_until(
+        lambda: spools()["without"] == [{"id": "plain", "name": "Plain", "spoolman": "absent"}],
+        what="the printer without Spoolman",
+    )
+    mapped = spools()
+    assert mapped["spools"] == [
+        {
+            "id": NEARLY_EMPTY, "name": "Acme Basic PLA", "material": "PLA",
+            "color_hex": "1E88E5", "remaining_g": 0.5, "low": True,
+            "printers": [{"id": "spools", "name": "Spools"}],
+        }
+    ]  # fmt: skip
+    assert mapped["low_below_g"] == LOW_FILAMENT_G
+    assert view(server.url)["spoolman"] == "active"

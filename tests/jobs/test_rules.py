@@ -220,6 +220,29 @@ def test_a_mismatch_dispatches_only_when_the_job_allows_it(
     assert [w.split(":")[0] for w in assigned.warnings] == [code]
 
 
+def test_a_job_needing_more_filament_than_the_spool_has_goes_to_a_fuller_one() -> None:
+    # Issue 19: a job needing 40 g is not sent to a printer with 25 g left, even the least
+    # worn one, nor when the job allows a mismatch (it would run out mid-print).
+    meta = {**META, "filament_weight_total": 40.0}
+    short = printer("short", filament_left_g=25.0)
+    full = printer("full", filament_left_g=500.0, usage=3600.0)
+    assert pairs(run([job(1, meta=meta)], [short, full])) == [(1, "full")]
+    assert run([job(1, meta=meta, allow=True)], [short]).assignments == []
+    # Moonraker's per-extruder weights count when the total is missing.
+    per_tool = {**META, "filament_weights": [20.0, 20.0]}
+    assert run([job(1, meta=per_tool)], [short]).assignments == []
+    # No spool known: nothing is guessed, the weight does not refuse it.
+    assert pairs(run([job(1, meta=meta)], [printer("p1")])) == [(1, "p1")]
+
+
+def test_the_spools_material_is_the_loaded_one_a_job_requires() -> None:
+    # facts() takes the spool's material over printers.json's: a PETG spool on a printer
+    # recorded as PLA refuses a job requiring PLA.
+    req = Requirements(material="PLA")
+    assert run([job(1, req=req)], [printer("p1", material="PETG")]).assignments == []
+    assert pairs(run([job(1, req=req)], [printer("p1", material="pla")])) == [(1, "p1")]
+
+
 def test_a_compatible_start_carries_no_warning() -> None:
     (assigned,) = run([job(1)], [printer("p1")]).assignments
     assert assigned.warnings == ()

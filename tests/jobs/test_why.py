@@ -167,6 +167,14 @@ def test_a_file_check_keeps_validations_code_and_says_what_to_do() -> None:
     assert "permitiéndolas" in petg[0].es
 
 
+def test_a_short_spool_says_how_much_the_job_needs_and_how_much_is_left() -> None:
+    meta = {**META, "filament_weight_total": 40.0}
+    lines = explain(job(1, meta=meta), [printer("p1", filament_left_g=25.0)])
+    assert [(w.subject, w.code) for w in lines] == [("p1", "not_enough_filament")]
+    assert "needs 40 g of filament but the loaded spool has 25 g left" in lines[0].en
+    assert "40 g de filamento" in lines[0].es
+
+
 def test_a_wrong_material_outranks_the_printers_state() -> None:
     # It would never get the job even when idle: say that, not "busy".
     lines = explain(job(1, req=PLA), [printer("p1", material="PETG", print_state="printing")])

@@ -101,6 +101,7 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
     "notifications": _page("notifications"),
     "printer-page": _printer_page,
     "cameras": _cameras,
+    "spools": _page("spools"),
     "find-printers": _find_printers,
 }
 

@@ -68,6 +68,7 @@ def view(i: int) -> dict[str, Any]:
         "z_offset": 0.0,
         "can_extrude": busy,
         "spool": None,
+        "spoolman": "absent",
         "actions": {
             a: a in ("pause", "cancel", "emergency_stop") if busy else True for a in ACTIONS
         },

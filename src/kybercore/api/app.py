@@ -60,6 +60,7 @@ from kybercore.api import (
     notifications,
     printers,
     session,
+    spools,
     temperatures,
     webcams,
     ws,
@@ -190,6 +191,7 @@ def create_app(
     app.include_router(notifications.router)  # notifications (issue 18)
     app.include_router(controls.router)  # the printer page (issue 19)
     app.include_router(webcams.router)  # webcams: the printer page, the camera wall
+    app.include_router(spools.router)  # Spoolman: which spool is on which printer
     app.include_router(discovery.router)  # "Find printers" (mDNS)
     add_docs(app)
 

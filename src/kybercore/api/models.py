@@ -304,6 +304,7 @@ class SpoolOut(BaseModel):
     material: str
     color_hex: str = Field(description='"RRGGBB", or "" when unknown.')
     remaining_g: float | None = Field(description="Grams left, as Spoolman counts them.")
+    low: bool = Field(description="Fewer grams left than the low-filament threshold.")
 
 
 class PrinterView(BaseModel):
@@ -340,6 +341,11 @@ class PrinterView(BaseModel):
     z_offset: float | None = Field(description="The Z babystep, mm (SET_GCODE_OFFSET).")
     can_extrude: bool = Field(description="The hotend is above min_extrude_temp.")
     spool: SpoolOut | None = Field(description="null without [spoolman] or an active spool.")
+    spoolman: Literal["unknown", "absent", "none", "active", "unreachable"] = Field(
+        description="Spoolman as the printer's Moonraker sees it: not read yet, no "
+        "[spoolman] configured, no spool set active, a spool active, or a spool set that "
+        "Spoolman did not answer with."
+    )
     actions: dict[str, bool] = Field(description="Which actions are valid in the current state.")
     updated_at: float = Field(description="Unix time of the last message from Moonraker.")
 

@@ -8,14 +8,23 @@ KyberCore only reads: material and remaining weight feed validation and the queu
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 from kybercore.core.numbers import finite_number
 
 _HEX: Final = re.compile(r"^[0-9a-fA-F]{6}$")
+
+LOW_FILAMENT_G: Final = 100.0
+"""Below this many grams a spool is shown as running low: about an evening's print, so an
+operator has time to fetch the next spool before a job is refused for want of filament."""
+
+SpoolmanState = Literal["unknown", "absent", "none", "active", "unreachable"]
+"""What a printer's Moonraker says about Spoolman: not read yet; no ``[spoolman]`` in its
+moonraker.conf; no spool set active; a spool active and read; a spool set but Spoolman did
+not answer with it."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +47,13 @@ class Spool:
             "material": self.material,
             "color_hex": self.color_hex,
             "remaining_g": self.remaining_g,
+            "low": self.low,
         }
+
+    @property
+    def low(self) -> bool:
+        """Fewer than :data:`LOW_FILAMENT_G` grams left (unknown weight is not low)."""
+        return self.remaining_g is not None and self.remaining_g < LOW_FILAMENT_G
 
 
 def spool_of(payload: Any) -> Spool | None:
@@ -69,3 +84,28 @@ def filament_needed_g(meta: Mapping[str, Any]) -> float | None:
         weights = [finite_number(w) for w in meta["filament_weights"]]
         needed = sum(w for w in weights if w is not None) or None
     return needed if needed is not None and needed > 0 else None
+
+
+def spool_map(views: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """Which spool is on which printer, from the printers' views (``GET /api/spools``).
+
+    ``spools``: each active spool once, with every printer holding it (more than one means
+    the same spool was set active on two printers: a mistake worth showing, not hiding),
+    fewest grams first, so the spools to replace soon lead. ``without``: the printers with
+    no spool to show, and why (their ``spoolman`` state).
+    """
+    spools: dict[int, dict[str, Any]] = {}
+    without: list[dict[str, Any]] = []
+    for view in views:
+        holder = {"id": view.get("id"), "name": view.get("name")}
+        shown = view.get("spool")
+        if not isinstance(shown, Mapping) or not isinstance(shown.get("id"), int):
+            without.append({**holder, "spoolman": view.get("spoolman", "unknown")})
+            continue
+        entry = spools.setdefault(shown["id"], {**shown, "printers": []})
+        entry["printers"].append(holder)
+    ordered = sorted(
+        spools.values(),
+        key=lambda s: (s["remaining_g"] is None, s["remaining_g"] or 0.0, s["id"]),
+    )
+    return {"low_below_g": LOW_FILAMENT_G, "spools": ordered, "without": without}

@@ -16,7 +16,7 @@ from typing import Any
 
 from kybercore.core.numbers import finite_number
 from kybercore.core.progress import BUSY, PrintMemory, estimate, track
-from kybercore.core.spools import Spool
+from kybercore.core.spools import Spool, SpoolmanState
 from kybercore.core.validation import PrinterFacts, allowed_actions
 from kybercore.moonraker.objects import Status
 from kybercore.registry.models import PrinterConfig
@@ -50,6 +50,8 @@ class LivePrinter:
     updated_at: float = 0.0
     spool: Spool | None = None
     """The active Spoolman spool, when Moonraker has ``[spoolman]`` and one is set."""
+    spoolman: SpoolmanState = "unknown"
+    """Why there is a spool or not (see :data:`~kybercore.core.spools.SpoolmanState`)."""
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
@@ -224,6 +226,7 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         z_offset=_z_offset(gcode_move.get("homing_origin")),
         can_extrude=status.get("extruder", {}).get("can_extrude") is True,
         spool=live.spool.public if live.spool else None,
+        spoolman=live.spoolman,
         actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )

@@ -89,6 +89,7 @@ class Sessions:
         self._printers: dict[str, FleetPrinter] = {}
         self._background: set[asyncio.Task[Any]] = set()
         self._listeners: list[Listener] = []
+        self._spool_watchers: list[Callable[[str], None]] = []
 
     def listen(self, listener: Listener) -> Callable[[], None]:
         """Call ``listener`` with every event of every current printer's session, after
@@ -97,6 +98,14 @@ class Sessions:
         cheap, and spawn any I/O."""
         self._listeners.append(listener)
         return lambda: self._listeners.remove(listener)
+
+    def watch_spools(self, watcher: Callable[[str], None]) -> Callable[[], None]:
+        """Call ``watcher(printer_id)`` each time a printer's spool (or Spoolman's state)
+        changed in its live state; return the function that stops it. Apart from
+        :meth:`listen`: the spool is read after the event that prompted the read, so a
+        listener woken by that event would still see the old spool."""
+        self._spool_watchers.append(watcher)
+        return lambda: self._spool_watchers.remove(watcher)
 
     def get(self, printer_id: str) -> FleetPrinter:
         """The printer ``printer_id``; :class:`UnknownPrinter` when there is none."""
@@ -333,8 +342,17 @@ class Sessions:
 
     async def _load_spool(self, printer: FleetPrinter) -> None:
         client = printer.client
-        if client is not None and await load_spool(client, printer.live):
-            self._hub.mark(printer.config.id)
+        if client is None or not await load_spool(client, printer.live):
+            return
+        pid = printer.config.id
+        self._hub.mark(pid)
+        if self._printers.get(pid) is not printer:
+            return  # replaced meanwhile: its spool is not news
+        for watcher in list(self._spool_watchers):
+            try:
+                watcher(pid)
+            except Exception:
+                log.exception("%s: a spool watcher failed", pid)
 
     async def _read_klippy_message(self, printer: FleetPrinter) -> None:
         if printer.client is None:

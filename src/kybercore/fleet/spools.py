@@ -8,9 +8,9 @@ import logging
 from collections.abc import Mapping
 from typing import Any, Final
 
-from kybercore.core.spools import Spool, spool_of
+from kybercore.core.spools import Spool, SpoolmanState, spool_of
 from kybercore.core.view import LivePrinter
-from kybercore.errors import PrinterError
+from kybercore.errors import MoonrakerRpcError, PrinterError
 from kybercore.moonraker.client import MoonrakerClient
 
 log = logging.getLogger(__name__)
@@ -25,21 +25,32 @@ def print_ended(delta: Mapping[str, Any]) -> bool:
     return isinstance(stats, Mapping) and stats.get("state") in _ENDED
 
 
-async def read_spool(client: MoonrakerClient) -> Spool | None:
-    """The active spool, or None: no ``[spoolman]`` in moonraker.conf, no spool set, or
-    Spoolman unreachable (then nothing is known, and nothing is guessed)."""
+async def read_spool(client: MoonrakerClient) -> tuple[SpoolmanState, Spool | None]:
+    """What Moonraker says of Spoolman, and the active spool if there is one. Nothing is
+    guessed: a spool Spoolman does not answer with is no spool (``unreachable``)."""
     try:
         spool_id = await client.active_spool_id()
-        return None if spool_id is None else spool_of(await client.spoolman_spool(spool_id))
+    except MoonrakerRpcError as exc:
+        # 404: no [spoolman] in moonraker.conf; anything else says nothing either way.
+        log.debug("%s: no spool id (%s)", client.name, exc.message)
+        return ("absent" if exc.rpc_code == 404 else "unknown"), None
     except PrinterError as exc:
-        log.debug("%s: no spool (%s)", client.name, exc.message)
-        return None
+        log.debug("%s: no spool id (%s)", client.name, exc.message)
+        return "unknown", None
+    if spool_id is None:
+        return "none", None
+    try:
+        spool = spool_of(await client.spoolman_spool(spool_id))
+    except PrinterError as exc:
+        log.debug("%s: spool %d not read (%s)", client.name, spool_id, exc.message)
+        return "unreachable", None
+    return ("active", spool) if spool is not None else ("unreachable", None)
 
 
 async def load_spool(client: MoonrakerClient, live: LivePrinter) -> bool:
-    """Read the spool into ``live``; whether it changed."""
-    spool = await read_spool(client)
-    if spool == live.spool:
+    """Read the spool into ``live``; whether what the view shows changed."""
+    state, spool = await read_spool(client)
+    if spool == live.spool and state == live.spoolman:
         return False
-    live.spool = spool
+    live.spoolman, live.spool = state, spool
     return True

@@ -1,7 +1,8 @@
 """The dispatch loop: plan when something changed, reserve, then start each copy for real.
 
 A planning round runs when something that can change a decision happens: a printer's print
-state, Klippy or connection changed, a printer stopped (or started) heating, a job, a gate
+state, Klippy or connection changed, a printer stopped (or started) heating, its Spoolman
+spool changed (another one set active, or its weight read after a print), a job, a gate
 or the queue changed (:meth:`Dispatcher.wake`), plus a slow tick for ``not_before`` times.
 Nothing is polled fast. A round asks :func:`kybercore.jobs.rules.plan` what to start where,
 and reserves each assignment in the store (atomic: losing a race to another loop or
@@ -92,6 +93,7 @@ class Dispatcher:
         self._planning = asyncio.Lock()
         self._loop_task: asyncio.Task[None] | None = None
         self._stop_listening: Callable[[], None] | None = None
+        self._stop_watching: Callable[[], None] | None = None
         self._runs: dict[str, asyncio.Task[None]] = {}
         """Printer -> the task starting an attempt there."""
         self._running: dict[int, str] = {}
@@ -111,6 +113,8 @@ class Dispatcher:
     def start(self) -> None:
         """Listen to the fleet and run the loop."""
         self._stop_listening = self._fleet.listen(self._hear)
+        # A fuller spool may let a job that was refused for want of filament go there.
+        self._stop_watching = self._fleet.sessions.watch_spools(lambda _printer: self.wake())
         self._loop_task = asyncio.create_task(self._loop(), name="queue-dispatcher")
         self.wake()
 
@@ -120,6 +124,9 @@ class Dispatcher:
         if self._stop_listening is not None:
             self._stop_listening()
             self._stop_listening = None
+        if self._stop_watching is not None:
+            self._stop_watching()
+            self._stop_watching = None
         await cancel_and_wait(self._loop_task)
         self._loop_task = None
         runs = list(self._runs.values())

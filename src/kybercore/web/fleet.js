@@ -15,6 +15,7 @@ import { getLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
+import { SPOOLS_HASH, showSpoolsPage } from "./spools.js";
 import { printerOfHash, showPrinterPage } from "./printer_page.js";
 import { LEDGER_PAGES, showLedgerPage } from "./ledger_views.js";
 import { NOTIFY_HASH, showNotificationsPage } from "./notifications.js";
@@ -112,16 +113,17 @@ function applySession() {
   $("find-printers").hidden = !can("admin");
 }
 
-/** Printers, Queue, History, Statistics, Notifications, Cameras or one printer's page, from
- * the address (#queue, #printer/<id>...), so any can be bookmarked. */
+/** Printers, Queue, History, Statistics, Notifications, Cameras, Spools or one printer's
+ * page, from the address (#queue, #printer/<id>...), so any can be bookmarked. */
 function route() {
   const hash = location.hash;
   const printerId = printerOfHash(hash);
-  const simple = { "#queue": "queue", [NOTIFY_HASH]: "notifications", [CAMERAS_HASH]: "cameras", ...LEDGER_PAGES };
+  const simple = { "#queue": "queue", [NOTIFY_HASH]: "notifications", [CAMERAS_HASH]: "cameras", [SPOOLS_HASH]: "spools", ...LEDGER_PAGES };
   const page = printerId !== null ? "printer" : simple[hash] || "fleet";
   document.body.dataset.page = page;
   showPrinterPage(printerId);
   showCamerasPage(page);
+  showSpoolsPage(page);
   $("queue-view").hidden = page !== "queue";
   showLedgerPage(page);
   showNotificationsPage(page);
