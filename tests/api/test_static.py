@@ -84,6 +84,7 @@ async def test_the_page_points_at_versioned_immutable_files(web: httpx.AsyncClie
     assert page.status_code == 200
     assert page.headers["cache-control"] == REVALIDATE
     assert page.headers["content-encoding"] == "gzip"
+    assert "script-src 'self'" in page.headers["content-security-policy"]  # the guard's
     urls = _versioned_urls(page.text)
     token = read_bundle(WEB_DIR).token
     assert urls

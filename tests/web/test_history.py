@@ -152,6 +152,10 @@ def test_the_printer_drawer_graphs_its_temperatures(
     drawer = page.get_by_role("dialog", name="Printer C")
     graph = drawer.get_by_role("img", name="Temperatures, last 30 minutes")
     expect(graph.locator("canvas")).to_have_count(1)
+    # uPlot came from beside charts.js: the page's versioned, long-cached prefix.
+    assert (page.locator("script[src*=uPlot]").get_attribute("src") or "").startswith(
+        f"{kybercore_server.url}/static/v-"
+    )
     # The live values keep arriving: the graph grows and shows the target it heats to.
     start = int(graph.get_attribute("data-points") or 0)
     wait_until(lambda: int(graph.get_attribute("data-points") or 0) >= start + 2, what="growth")

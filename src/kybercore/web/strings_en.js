@@ -2,7 +2,7 @@
 
 export const en = {
   "app.title": "KyberCore — Fleet",
-  "app.skip": "Skip to the printers",
+  "app.skip": "Skip to the content",
   "nav.summary": "Fleet summary",
   "view.label": "View",
   "view.tiles": "Tiles",

@@ -2,7 +2,7 @@
 
 export const es = {
   "app.title": "KyberCore — Flota",
-  "app.skip": "Ir a las impresoras",
+  "app.skip": "Ir al contenido",
   "nav.summary": "Resumen de la flota",
   "view.label": "Vista",
   "view.tiles": "Mosaico",
