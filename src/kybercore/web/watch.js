@@ -26,6 +26,10 @@ export function show(source, ids) {
 }
 
 function send() {
+  // Until the cards have said what is on screen, every printer stays in full: asking for
+  // the drawer's and the page's nothing first would turn the tiles on screen into summaries
+  // for a moment, and back.
+  if (!shown.has("cards") && ![...shown.values()].some((ids) => ids.size)) return;
   const all = new Set();
   for (const ids of shown.values()) for (const id of ids) all.add(id);
   watchView([...all].sort());
