@@ -48,16 +48,23 @@ class BrowserMirror:
         await self._ws.send(json.dumps(message))
 
     async def _read(self, ws: ClientConnection) -> None:
-        async for text in ws:
-            assert isinstance(text, str)
+        async for message in ws:
+            # Binary frames of UTF-8 JSON, as KyberCore sends them (not re-encoded per client).
+            assert isinstance(message, bytes)
+            text = message.decode()
             frame = json.loads(text)
             self.raw.append(text)
             self.frames.append(frame)
             self.received_at.append(time.monotonic())
             if frame["type"] == "snapshot":
-                self.printers = {p["id"]: p for p in frame["printers"]}
+                # With a view: slim summaries in "printers", full views of the view in "full".
+                printers = {p["id"]: p for p in frame["printers"]}
+                self.printers = printers | {p["id"]: p for p in frame.get("full", [])}
+            elif frame["type"] == "views":
+                self.printers = self.printers | {p["id"]: p for p in frame["printers"]}
             elif frame["type"] == "delta":
                 merged = merge_status(self.printers, frame["printers"])
+                merged = merge_status(merged, frame.get("full", {}))
                 for removed in frame["removed"]:
                     merged.pop(removed, None)
                 self.printers = merged

@@ -55,8 +55,8 @@ async def test_revoking_a_token_closes_its_sockets_and_sessions(edge_server: Sta
         websockets.connect(server.ws_url, additional_headers=cookie) as by_cookie,
         websockets.connect(server.ws_url, additional_headers=bearer) as by_bearer,
     ):
-        assert '"snapshot"' in await by_cookie.recv()
-        assert '"snapshot"' in await by_bearer.recv()
+        assert b'"snapshot"' in await by_cookie.recv()
+        assert b'"snapshot"' in await by_bearer.recv()
         store.revoke(record.id)  # as `kybercore tokens revoke` does, from another process
         took = await _closed_within(by_cookie, REVOKED_SOCKET_CLOSES_WITHIN)
         await _closed_within(by_bearer, REVOKED_SOCKET_CLOSES_WITHIN)
@@ -73,7 +73,7 @@ async def test_the_first_token_turns_a_running_open_server_into_tokens_mode(
     async with httpx.AsyncClient(base_url=server.url) as client:
         assert (await client.get("/api/session")).json()["access"] == "open"
         async with websockets.connect(server.ws_url) as anonymous:
-            assert '"snapshot"' in await anonymous.recv()
+            assert b'"snapshot"' in await anonymous.recv()
             _, token = TokenStore(tokens_path_for(server.printers_file)).create("ann", "admin")
             await _closed_within(anonymous, REVOKED_SOCKET_CLOSES_WITHIN)
         assert (await client.get("/api/session")).json()["access"] == "tokens"

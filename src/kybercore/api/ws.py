@@ -1,6 +1,9 @@
 """``/ws``: the browser's live socket. A snapshot of the fleet first, then coalesced
 deltas and events from the fleet hub, with a heartbeat whenever the fleet is quiet.
 
+Frames go out as binary messages of UTF-8 JSON: the hub encodes each frame once for many
+clients, and a text message would cost a decode (and a re-encode) per client per frame.
+
 Host and origin were checked at the door (:mod:`kybercore.api.guard`); the credential is
 checked at the handshake and then every :data:`ACCESS_CHECK_SECONDS`, so a revoked token,
 an ended session or a server that starts asking for tokens closes the socket (code 4401).
@@ -19,7 +22,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from kybercore.api.deps import Service
 from kybercore.api.security import Access
-from kybercore.fleet.hub import HubClient
+from kybercore.fleet.hub import Hub, HubClient
 
 HEARTBEAT_SECONDS: Final = 10.0
 ACCESS_CHECK_SECONDS: Final = 1.0
@@ -32,7 +35,9 @@ router = APIRouter()
 @router.websocket("/ws")
 async def browser_socket(websocket: WebSocket, service: Service) -> None:
     """Snapshot, then coalesced deltas and events; send ``{"type": "console",
-    "printers": [ids]}`` to receive those printers' G-code responses."""
+    "printers": [ids]}`` to receive those printers' G-code responses, and ``{"type":
+    "view", "printers": [ids]}`` to get full views of those printers only and slim summaries
+    of the others (``"printers": null``: every printer in full, the default)."""
     access: Access = websocket.app.state.access
 
     def allowed() -> bool:
@@ -46,7 +51,7 @@ async def browser_socket(websocket: WebSocket, service: Service) -> None:
     hub = service.hub
     client = hub.connect()
     sender = asyncio.create_task(_send(websocket, client))
-    receiver = asyncio.create_task(_receive(websocket, client))
+    receiver = asyncio.create_task(_receive(websocket, hub, client))
     guard = asyncio.create_task(_while_allowed(allowed))
     tasks = (sender, receiver, guard)
     try:
@@ -67,16 +72,20 @@ async def _send(websocket: WebSocket, client: HubClient) -> None:
             frame = await asyncio.wait_for(client.queue.get(), HEARTBEAT_SECONDS)
         except TimeoutError:
             frame = orjson.dumps({"type": "heartbeat", "time": time.time()})
-        await websocket.send_text(frame.decode())
+        await websocket.send_bytes(frame)
 
 
-async def _receive(websocket: WebSocket, client: HubClient) -> None:
+async def _receive(websocket: WebSocket, hub: Hub, client: HubClient) -> None:
     with contextlib.suppress(WebSocketDisconnect, ValueError, RuntimeError):
         while True:
             message = await websocket.receive_json()
-            if isinstance(message, dict) and message.get("type") == "console":
-                wanted = message.get("printers")
+            if not isinstance(message, dict):
+                continue
+            wanted = message.get("printers")
+            if message.get("type") == "console":
                 client.console = {str(p) for p in wanted} if isinstance(wanted, list) else set()
+            elif message.get("type") == "view" and (wanted is None or isinstance(wanted, list)):
+                hub.watch(client, None if wanted is None else [str(p) for p in wanted])
 
 
 async def _while_allowed(allowed: Callable[[], bool]) -> None:

@@ -6,7 +6,11 @@ into one delta frame, serialized once and queued for every client, so the frame 
 client stays bounded whatever the fleet size. A client that cannot keep up overflows its
 bounded queue; the queue is then emptied and replaced by one fresh snapshot, so a slow
 browser never slows the others and never misses state. ``GET /api/printers`` reads the same
-published views (:meth:`Hub.fleet_json`), so reading the fleet never renders it."""
+published views (:meth:`Hub.fleet_json`), so reading the fleet never renders it.
+
+A client may say which printers it shows (:meth:`Hub.watch`): it then gets full views of
+those and slim summaries of the rest (:mod:`kybercore.fleet.frames`), with encodings shared
+between clients, never made per client."""
 
 from __future__ import annotations
 
@@ -15,7 +19,7 @@ import itertools
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -23,6 +27,7 @@ import orjson
 
 from kybercore.aio import cancel_and_wait
 from kybercore.core.view import View, diff
+from kybercore.fleet.frames import DeltaFrames, slim, snapshot_frame, views_frame
 from kybercore.moonraker.objects import merge_status
 
 log = logging.getLogger(__name__)
@@ -45,6 +50,8 @@ class HubClient:
     queue: asyncio.Queue[bytes] = field(default_factory=lambda: asyncio.Queue(QUEUE_FRAMES))
     console: set[str] = field(default_factory=set)
     """Printers whose G-code responses this client asked for."""
+    view: frozenset[str] | None = None
+    """Printers this client gets in full (None: every printer); slim summaries of the rest."""
     resyncs: int = 0
 
 
@@ -79,6 +86,8 @@ class Hub:
         self._fleet: bytes | None = None
         """Every view as one JSON array, until a flush replaces a view."""
         self._snapshot_frame: bytes | None = None
+        self._slim_fleet: bytes | None = None
+        """Every view's slim summary as one JSON array, until a flush replaces a view."""
         self._task: asyncio.Task[None] | None = None
 
     # -- feeding -----------------------------------------------------------------------
@@ -109,6 +118,24 @@ class Hub:
         client.queue.put_nowait(self._snapshot())
         self._clients[client.id] = client
         return client
+
+    def watch(self, client: HubClient, printer_ids: Iterable[str] | None) -> None:
+        """Send this client full views of ``printer_ids`` only, slim summaries of the rest
+        (None: every printer in full, the default).
+
+        The printers entering the view are sent in full at once: until now the client had
+        only their summaries, and an idle printer may not change for a long time."""
+        old = client.view
+        new = None if printer_ids is None else frozenset(printer_ids)
+        client.view = new
+        if old is None or new == old:
+            return
+        if new is None:
+            entering = [view for i, view in self._views.items() if i not in old]
+        else:
+            entering = [self._views[i] for i in new - old if i in self._views]
+        if entering:
+            self._offer(client, views_frame(entering))
 
     def disconnect(self, client: HubClient) -> None:
         """Forget a client."""
@@ -196,7 +223,7 @@ class Hub:
         """Render printers into the views and the patches not sent yet, until the
         ``time.perf_counter()`` value ``until``; return the printers left."""
         if printer_ids:
-            self._fleet = self._snapshot_frame = None
+            self._fleet = self._snapshot_frame = self._slim_fleet = None
         for index, printer_id in enumerate(printer_ids):
             if index and time.perf_counter() > until:
                 return printer_ids[index:]
@@ -226,32 +253,34 @@ class Hub:
 
     def _publish(self) -> None:
         """Queue the unsent patches as one delta frame, then the pending events."""
-        frames: list[bytes] = []
         if self._on_publish is not None and (self._unsent or self._removed or self._events):
             self._on_publish(self._unsent, self._removed, self._events)
+        delta: DeltaFrames | None = None
         if self._unsent or self._removed:
             self._seq += 1
-            delta = {
-                "type": "delta",
-                "seq": self._seq,
-                "printers": self._unsent,
-                "removed": sorted(self._removed),
-            }
-            frames.append(_encode(delta))
+            delta = DeltaFrames(self._seq, self._unsent, sorted(self._removed))
             self._unsent, self._removed = {}, set()
-        frames.extend(_encode(event) for event in self._events)
+        events = [_encode(event) for event in self._events]
         self._events.clear()
-        for frame in frames:
-            for client in list(self._clients.values()):
+        for client in list(self._clients.values()):
+            # Every client gets every delta, even one with nothing in its view: the
+            # sequence numbers tell a browser that it missed nothing.
+            if delta is not None:
+                self._offer(client, delta.frame(client.view))
+            for frame in events:
                 self._offer(client, frame)
 
-    def _snapshot(self) -> bytes:
+    def _snapshot(self, view: frozenset[str] | None = None) -> bytes:
         # Built once for every client that connects or overflows before the views change:
         # at 5,000 printers a snapshot is ~5 MB, and slow clients tend to overflow together.
-        if self._snapshot_frame is None:
-            head = b'{"type":"snapshot","seq":%d,"printers":' % self._seq
-            self._snapshot_frame = head + self.fleet_json() + b"}"
-        return self._snapshot_frame
+        if view is None:
+            if self._snapshot_frame is None:
+                self._snapshot_frame = snapshot_frame(self._seq, self.fleet_json())
+            return self._snapshot_frame
+        if self._slim_fleet is None:
+            self._slim_fleet = orjson.dumps([slim(v) for v in self._views.values()])
+        full = [self._views[i] for i in view if i in self._views]
+        return snapshot_frame(self._seq, self._slim_fleet, full)
 
     def _offer(self, client: HubClient, frame: bytes) -> None:
         try:
@@ -261,7 +290,7 @@ class Hub:
             while not client.queue.empty():
                 client.queue.get_nowait()
             client.resyncs += 1
-            client.queue.put_nowait(self._snapshot())
+            client.queue.put_nowait(self._snapshot(client.view))
 
 
 def _encode(frame: dict[str, Any] | list[View]) -> bytes:

@@ -6,6 +6,7 @@ import { hideFiles, refreshFileButtons, showFiles } from "./files.js";
 import { t } from "./i18n.js";
 import { printers, statusOf, subscribe } from "./store.js";
 import { hideTemperatures, relabelTemperatures, showTemperatures } from "./temps.js";
+import { show } from "./watch.js";
 
 let els = null;
 let openId = null;
@@ -47,6 +48,7 @@ export function openDrawer(id, which = "files") {
   if (!openId) opener = document.activeElement;
   if (openId !== id && els.temps) showTemperatures(els.temps, id);
   openId = id;
+  show("drawer", [id]); // its graph and heaters need the full view, wherever its tile is
   els.root.hidden = false;
   document.body.classList.add("drawer-open");
   updateHeader();
@@ -56,6 +58,7 @@ export function openDrawer(id, which = "files") {
 export function closeDrawer() {
   if (!openId) return;
   openId = null;
+  show("drawer", []);
   hideFiles();
   hideConsole();
   hideTemperatures();

@@ -1,6 +1,8 @@
 // The one WebSocket to the backend: snapshot, deltas and events; reconnects by itself with
 // backoff and resyncs from the next snapshot. Status goes to onStatus for the banner.
-import { applyDelta, applySnapshot, noteServerTime, resetSequence } from "./store.js";
+// Frames arrive as binary UTF-8 JSON (the server encodes each once for every client); text
+// frames are read too.
+import { applyDelta, applySnapshot, applyViews, noteServerTime, resetSequence, setDetail } from "./store.js";
 
 const BACKOFF = [500, 1000, 2000, 3000, 5000];
 const SILENCE_MS = 25000; // heartbeats come every 10 s when idle
@@ -8,6 +10,9 @@ const SILENCE_MS = 25000; // heartbeats come every 10 s when idle
 let socket = null;
 let attempt = 0;
 let consoleIds = [];
+/** @type {string[] | null} the printers to get in full (null: all of them) */
+let viewIds = null;
+const decoder = new TextDecoder();
 let watchdog = null;
 let retryTimer = null;
 /** @type {{onEvent: (frame: any) => void, onStatus: (status: any) => void}} */
@@ -23,6 +28,17 @@ export function startLive(options) {
 export function watchConsole(ids) {
   consoleIds = [...ids];
   send({ type: "console", printers: consoleIds });
+}
+
+/**
+ * Get full views of these printers only, slim summaries (state, progress, ETA, alarms) of
+ * the others; null: every printer in full. Kept across reconnects.
+ * @param {string[] | null} ids
+ */
+export function watchView(ids) {
+  viewIds = ids === null ? null : [...ids];
+  setDetail(viewIds);
+  send({ type: "view", printers: viewIds });
 }
 
 /** Reconnect now instead of waiting for the backoff. */
@@ -41,9 +57,11 @@ function connect() {
   handlers.onStatus({ state: "connecting", attempt });
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
   const ws = new WebSocket(url);
+  ws.binaryType = "arraybuffer";
   socket = ws;
   ws.addEventListener("open", () => {
     if (consoleIds.length) send({ type: "console", printers: consoleIds });
+    if (viewIds !== null) send({ type: "view", printers: viewIds });
     armWatchdog();
   });
   ws.addEventListener("message", (event) => {
@@ -51,7 +69,7 @@ function connect() {
     armWatchdog();
     let frame;
     try {
-      frame = JSON.parse(event.data);
+      frame = JSON.parse(typeof event.data === "string" ? event.data : decoder.decode(event.data));
     } catch {
       return;
     }
@@ -82,6 +100,9 @@ function receive(frame, ws) {
       break;
     case "delta":
       if (!applyDelta(frame)) lost(ws); // a frame went missing: resync from a snapshot
+      break;
+    case "views":
+      applyViews(frame);
       break;
     case "heartbeat":
       noteServerTime(frame.time);

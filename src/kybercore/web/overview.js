@@ -6,6 +6,7 @@ import * as fmt from "./format.js";
 import { t } from "./i18n.js";
 import { onQueueChange } from "./queue_data.js";
 import { AWAITING, GROUPS, comparator, facets, gates, matches, orderKey, printers, serverNow, statusOf, subscribe } from "./store.js";
+import { forgetCard, observeCard } from "./watch.js";
 
 const VIEW_KEY = "kybercore.view";
 const cards = new Map(); // id -> Tile | Row, for the current mode
@@ -92,7 +93,7 @@ export function setMode(mode) {
 
 /** Throw every card away and build them again (mode or language change). */
 export function rebuild() {
-  for (const card of cards.values()) card.el.remove();
+  for (const card of cards.values()) drop(card);
   cards.clear();
   for (const id of printers.keys()) dirty.add(id);
   orderDirty = true;
@@ -103,7 +104,7 @@ export function rebuild() {
 
 function onStoreChange(change) {
   for (const id of change.removed) {
-    cards.get(id)?.el.remove();
+    if (cards.has(id)) drop(cards.get(id));
     cards.delete(id);
     orderKeys.delete(id);
     if (selection.delete(id)) hooks.onSelection();
@@ -111,7 +112,7 @@ function onStoreChange(change) {
   if (change.full) {
     for (const id of [...cards.keys()]) {
       if (!printers.has(id)) {
-        cards.get(id).el.remove();
+        drop(cards.get(id));
         cards.delete(id);
       }
     }
@@ -157,6 +158,7 @@ function flush() {
       card.refs.select.checked = selection.has(id);
       cards.set(id, card);
       container.append(card.el);
+      observeCard(card.el); // what is on screen gets full views, the rest summaries
       orderDirty = true;
     }
     card.update(p, now);
@@ -170,6 +172,11 @@ function flush() {
   updateCounts();
   // Visible in the browser's performance tools (and read by the scale test).
   performance.measure("kybercore:render", { start: started, detail: dirtyCount });
+}
+
+function drop(card) {
+  forgetCard(card.el);
+  card.el.remove();
 }
 
 function reorder(container) {

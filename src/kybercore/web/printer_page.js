@@ -14,6 +14,7 @@ import { buildControls, card, updateControls } from "./printer_controls.js";
 import { can } from "./session.js";
 import { printers, statusOf, subscribe } from "./store.js";
 import { hideTemperatures, showTemperatures } from "./temps.js";
+import { show } from "./watch.js";
 import { renderWebcam, stopWebcam } from "./webcam_view.js";
 
 const PREFIX = "#printer/";
@@ -38,6 +39,7 @@ export function showPrinterPage(id) {
   if (id === shownId && id !== null) return;
   leave();
   shownId = id;
+  show("page", id === null ? [] : [id]);
   root.hidden = id === null;
   if (id === null) return;
   closeDrawer(); // the console, files and graph are the page's now

@@ -14,6 +14,8 @@ export const gates = new Map();
 export const AWAITING = "awaiting_clear";
 
 const listeners = new Set();
+/** @type {Set<string> | null} the printers the server sends in full (null: all of them) */
+let detail = null;
 let seq = null;
 let skew = 0; // server clock minus browser clock, in seconds (from heartbeats)
 
@@ -27,11 +29,14 @@ function emit(change) {
   for (const fn of listeners) fn(change);
 }
 
-/** Replace the whole state (first frame, and whenever the server resyncs us). */
+/**
+ * Replace the whole state (first frame, and whenever the server resyncs us). With a view
+ * (see live.js watchView), `printers` holds slim summaries and `full` the views in it.
+ */
 export function applySnapshot(frame) {
   const removed = new Set(printers.keys());
   printers.clear();
-  for (const view of frame.printers || []) {
+  for (const view of [...(frame.printers || []), ...(frame.full || [])]) {
     printers.set(view.id, view);
     removed.delete(view.id);
   }
@@ -39,28 +44,53 @@ export function applySnapshot(frame) {
   emit({ full: true, changed: new Set(printers.keys()), removed, transitions: [] });
 }
 
+const NEW = Symbol("new printer"); // no state before: no transition
+
 /** Merge a delta; false when a frame is missing (the caller resyncs). */
 export function applyDelta(frame) {
   if (seq !== null && frame.seq !== seq + 1) return false;
   seq = frame.seq;
   const changed = new Set();
   const transitions = [];
-  for (const [id, patch] of Object.entries(frame.printers || {})) {
-    const current = printers.get(id);
-    if (current === undefined) {
-      printers.set(id, patch);
-    } else {
-      const before = current.job?.state;
-      merge(current, patch);
-      const after = current.job?.state;
-      if (before !== after) transitions.push({ id, from: before, to: after });
+  const before = new Map();
+  // Slim patches of every changed printer, then full patches of those in view (if any).
+  for (const patches of [frame.printers || {}, frame.full || {}]) {
+    for (const [id, patch] of Object.entries(patches)) {
+      const current = printers.get(id);
+      if (!before.has(id)) before.set(id, current === undefined ? NEW : current.job?.state);
+      if (current === undefined) printers.set(id, patch);
+      else merge(current, patch);
+      changed.add(id);
     }
-    changed.add(id);
+  }
+  for (const [id, from] of before) {
+    const to = printers.get(id)?.job?.state;
+    if (from !== NEW && from !== to) transitions.push({ id, from, to });
   }
   const removed = new Set(frame.removed || []);
   for (const id of removed) printers.delete(id);
   if (changed.size || removed.size) emit({ full: false, changed, removed, transitions });
   return true;
+}
+
+/** Full views of printers that came into view: they replace the summaries we had. */
+export function applyViews(frame) {
+  const changed = new Set();
+  for (const view of frame.printers || []) {
+    printers.set(view.id, view);
+    changed.add(view.id);
+  }
+  if (changed.size) emit({ full: false, changed, removed: new Set(), transitions: [] });
+}
+
+/**
+ * Which printers the server sends in full from now on (null: all). The others carry only
+ * their summary: their heaters and `updated_at` are as last seen in full, so no age is
+ * judged from them.
+ * @param {string[] | null} ids
+ */
+export function setDetail(ids) {
+  detail = ids === null ? null : new Set(ids);
 }
 
 /** Forget the sequence (the socket closed); the next snapshot starts afresh. */
@@ -126,7 +156,7 @@ export const STALE_SECONDS = 10;
  * progress and durations change all the time).
  */
 export function staleAge(p, now = serverNow()) {
-  if (!p.updated_at) return null;
+  if (!p.updated_at || (detail !== null && !detail.has(p.id))) return null;
   const age = now - p.updated_at;
   if (age < STALE_SECONDS) return null;
   const busy = p.job?.state === "printing" || p.job?.state === "paused";

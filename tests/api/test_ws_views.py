@@ -1,0 +1,83 @@
+"""``/ws`` with a view: a real ``kybercore serve`` over real Moonraker + Klippy printers, one
+browser showing every printer and one showing a single tile."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.browser_mirror import BrowserMirror
+from tests.helpers import KyberCoreServer
+
+pytestmark = pytest.mark.integration
+
+FLEET = ("fleet-a", "fleet-b", "fleet-c")
+
+
+@pytest.fixture
+async def api(kybercore_server: KyberCoreServer) -> AsyncIterator[httpx.AsyncClient]:
+    async with httpx.AsyncClient(base_url=kybercore_server.url, timeout=60) as client:
+        yield client
+
+
+def views_frames(mirror: BrowserMirror) -> list[dict[str, Any]]:
+    return mirror.events("views")
+
+
+async def test_a_browser_gets_full_views_of_its_tiles_and_summaries_of_the_rest(
+    kybercore_server: KyberCoreServer, api: httpx.AsyncClient
+) -> None:
+    url = kybercore_server.ws_url
+    async with BrowserMirror(url) as everything, BrowserMirror(url) as paged:
+        await everything.wait(
+            lambda: all(everything.printers[p]["klippy_state"] == "ready" for p in FLEET),
+            what="fleet ready",
+        )
+        # From "everything" to nothing, then to one tile: that tile's full view comes back,
+        # which also tells the test that the server applied the view.
+        await paged.send({"type": "view", "printers": []})
+        await paged.send({"type": "view", "printers": ["fleet-a"]})
+        await paged.wait(lambda: len(views_frames(paged)) == 1, what="fleet-a's full view")
+        [entered] = views_frames(paged)[0]["printers"]
+        assert entered["id"] == "fleet-a"
+        assert "extruder" in entered
+        since = len(paged.frames)
+        try:
+            for printer, target in (("fleet-b", 40), ("fleet-a", 41)):
+                answer = await api.post(
+                    f"/api/printers/{printer}/gcode", json={"script": f"M104 S{target}"}
+                )
+                assert answer.status_code == 200, answer.text
+                await everything.wait(
+                    lambda p=printer, t=target: everything.printers[p]["extruder"]["target"] == t,
+                    what=f"{printer} target {target} (everything)",
+                )
+            # In view: followed in full. Out of view: the summary only, which has no heaters.
+            await paged.wait(
+                lambda: paged.printers["fleet-a"]["extruder"]["target"] == 41,
+                what="fleet-a target 41 (one tile)",
+            )
+            assert paged.printers["fleet-b"]["extruder"]["target"] != 40
+            deltas = [f for f in paged.frames[since:] if f["type"] == "delta"]
+            assert deltas
+            assert all("fleet-b" not in f["full"] for f in deltas)
+            assert all("extruder" not in patch for f in deltas for patch in f["printers"].values())
+            for printer in FLEET:  # what the dashboard sorts and counts by, for every printer
+                summary = paged.printers[printer]
+                assert summary["connection"] == "online"
+                assert summary["job"]["state"] in ("standby", "complete", "cancelled", "")
+                assert summary["name"]
+
+            # fleet-b scrolls into view: its full view comes at once, not with its next change.
+            await paged.send({"type": "view", "printers": ["fleet-a", "fleet-b"]})
+            await paged.wait(lambda: len(views_frames(paged)) == 2, what="fleet-b's full view")
+            [view] = views_frames(paged)[1]["printers"]
+            assert view["id"] == "fleet-b"
+            assert view["extruder"]["target"] == 40
+            assert paged.printers["fleet-b"]["extruder"]["target"] == 40
+        finally:
+            for printer in ("fleet-a", "fleet-b"):
+                await api.post(f"/api/printers/{printer}/gcode", json={"script": "M104 S0"})

@@ -1,0 +1,85 @@
+"""The page asks for full views of what it shows only (the tiles on screen, one printer's
+page), and reads binary frames: slim summaries with full patches, and full views of printers
+coming into view. The WebSocket is played by the test, as in test_scale.py."""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+import pytest
+from playwright.sync_api import Page, WebSocketRoute, expect
+
+from tests.helpers import KyberCoreServer
+from tests.web.conftest import ConsoleErrors
+from tests.web.test_scale import COUNT, connect, view
+
+pytestmark = pytest.mark.browser
+
+
+def views_asked(sockets: list[WebSocketRoute]) -> list[list[str] | None]:
+    """Start recording the view messages the page sends on its socket."""
+    asked: list[list[str] | None] = []
+
+    def heard(message: str | bytes) -> None:
+        frame = json.loads(message)
+        if frame.get("type") == "view":
+            asked.append(frame["printers"])
+
+    sockets[0].on_message(heard)
+    return asked
+
+
+def next_view(page: Page, asked: list[list[str] | None], check: Any, what: str) -> list[str]:
+    """Wait for a view message that passes ``check``."""
+    deadline = time.monotonic() + 10
+    while True:
+        for ids in asked:
+            if ids is not None and check(set(ids)):
+                return ids
+        assert time.monotonic() < deadline, f"the page never asked for {what}: {asked}"
+        page.wait_for_timeout(50)  # poll: lets Playwright deliver the socket messages
+
+
+def test_the_page_asks_for_what_it_shows_and_reads_binary_frames(
+    page: Page, kybercore_server: KyberCoreServer, console_errors: ConsoleErrors
+) -> None:
+    # The printers are the test's own: the printer page's REST reads find none of them.
+    console_errors.expect(r"404 \(Not Found\) \[.*/api/printers/p250/")
+    sockets = connect(page, kybercore_server.url)
+    asked = views_asked(sockets)
+    views = [view(i) for i in range(COUNT)]
+    sockets[0].send(json.dumps({"type": "snapshot", "seq": 1, "printers": views}).encode())
+    expect(page.locator(".tile")).to_have_count(COUNT)
+
+    # The first screenful (and a margin), not the fleet.
+    first = next_view(page, asked, lambda ids: "p000" in ids, "the first tiles")
+    assert 0 < len(first) < COUNT // 2
+    assert "p499" not in first
+
+    # A binary delta: summaries of every changed printer, full patches of the shown ones.
+    delta = {
+        "type": "delta",
+        "seq": 2,
+        "removed": [],
+        "printers": {"p000": {"job": {"progress": 0.5}}, "p498": {"job": {"progress": 0.25}}},
+        "full": {"p000": {"extruder": {"temperature": 211.1}, "job": {"progress": 0.5}}},
+    }
+    sockets[0].send(json.dumps(delta).encode())
+    expect(page.locator('.tile[data-id="p000"] .temp .value').first).to_have_text("211.1°")
+    expect(page.locator('.tile[data-id="p000"] .pct')).to_have_text("50%")
+    # A tile off screen follows its summary.
+    expect(page.locator('.tile[data-id="p498"] .pct')).to_have_text("25%")
+
+    # Scrolled to the end: the page asks for the last tiles instead of the first.
+    page.locator('.tile[data-id="p499"]').scroll_into_view_if_needed()
+    last = next_view(page, asked, lambda ids: "p499" in ids, "the last tiles")
+    assert "p000" not in last
+    entering = {**views[499], "extruder": {"temperature": 233.3, "target": 0.0, "power": 0.0}}
+    sockets[0].send(json.dumps({"type": "views", "printers": [entering]}).encode())
+    expect(page.locator('.tile[data-id="p499"] .temp .value').first).to_have_text("233.3°")
+
+    # One printer's page: that printer alone.
+    page.evaluate("location.hash = '#printer/p250'")
+    next_view(page, asked, lambda ids: ids == {"p250"}, "the printer page's printer alone")
