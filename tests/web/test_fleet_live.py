@@ -99,15 +99,48 @@ def test_switching_language_changes_the_labels(
     expect(page.locator("html")).to_have_attribute("data-theme", "light")
     expect(page.get_by_role("button", name="Switch to dark theme")).to_be_visible()
 
-    # Every label exists in both languages.
+    # Every label exists in both languages (one file each): t() has no fallback to fetch.
     missing = page.evaluate(
         """async () => {
-            const { STRINGS } = await import('/static/strings.js');
-            const en = Object.keys(STRINGS.en), es = Object.keys(STRINGS.es);
+            const en = Object.keys((await import('/static/lang/en.js')).default);
+            const es = Object.keys((await import('/static/lang/es.js')).default);
             return [...en.filter(k => !es.includes(k)), ...es.filter(k => !en.includes(k))];
         }"""
     )
     assert missing == []
+
+
+def test_only_the_chosen_language_is_fetched(
+    new_page: Callable[..., Page], kybercore_server: KyberCoreServer
+) -> None:
+    """Issue 19: one file per language, fetched on demand: Spanish only on the first switch."""
+    page = new_page(locale="en-US")
+    fetched: list[str] = []
+    page.on("request", lambda r: fetched.append(r.url) if "/lang/" in r.url else None)
+    open_fleet(page, kybercore_server.url)
+    expect(page.locator("#add-printer")).to_have_text("Add printer")
+    assert [url.rsplit("/", 1)[1] for url in fetched] == ["en.js"], fetched
+    # Under the page's versioned prefix, like every other module.
+    assert re.search(r"/static/v-[0-9a-f]+/lang/en\.js$", fetched[0]), fetched
+
+    page.select_option("#lang", "es")
+    expect(page.locator("#add-printer")).to_have_text("Añadir impresora")
+    expect(tile(page, "fleet-a").locator(".pill")).to_have_text("Lista")
+    assert [url.rsplit("/", 1)[1] for url in fetched] == ["en.js", "es.js"], fetched
+
+    # Back and forth again: both are in memory, nothing more is fetched.
+    page.select_option("#lang", "en")
+    expect(page.locator("#add-printer")).to_have_text("Add printer")
+    page.select_option("#lang", "es")
+    expect(page.locator("#add-printer")).to_have_text("Añadir impresora")
+    assert len(fetched) == 2, fetched
+
+    # Remembered: the reload fetches Spanish only.
+    fetched.clear()
+    page.reload()
+    page.locator("#live[data-state=live]").wait_for()
+    expect(page.locator("#add-printer")).to_have_text("Añadir impresora")
+    assert [url.rsplit("/", 1)[1] for url in fetched] == ["es.js"], fetched
 
 
 def test_screenshots_of_the_overview(

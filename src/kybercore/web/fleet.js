@@ -11,7 +11,7 @@ import { findPrinters } from "./discovery.js";
 import { initDrawer, onConsoleFrame, openDrawer, relabelDrawer } from "./drawer.js";
 import { onFilesChanged } from "./files.js";
 import * as fmt from "./format.js";
-import { getLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
+import { getLang, loadLang, onLangChange, setLang, t, translateStatic } from "./i18n.js";
 import { reconnectNow, startLive } from "./live.js";
 import { initOverview, rebuild, setMode } from "./overview.js";
 import { printerDialog, removePrinter } from "./printer_form.js";
@@ -172,10 +172,16 @@ function onStoreChange(change) {
 }
 
 async function main() {
+  await loadLang(); // the page's language, before anything is labelled
   translateStatic(document);
   const lang = /** @type {HTMLSelectElement} */ ($("lang"));
   lang.value = getLang();
-  lang.addEventListener("change", () => setLang(lang.value));
+  lang.addEventListener("change", () =>
+    setLang(lang.value).catch(() => {
+      lang.value = getLang(); // its file did not load: the page stays as it was
+      toast({ kind: "error", message: t("error.unknown") });
+    }),
+  );
   initTheme();
   initDensity($("density"));
   initAlerts($("alerts-notify"), $("alerts-sound"));

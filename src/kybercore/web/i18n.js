@@ -1,9 +1,17 @@
 // Spanish and English: follows the browser, switchable, remembered in localStorage.
-import { STRINGS } from "./strings.js";
+// One file per language (lang/<code>.js), fetched on demand (issue 19): the page's language
+// before the first render (loadLang), the other one on the first switch (setLang). Both
+// files hold the same keys (tests/web/test_fleet_live.py), so there is no fallback download.
 
 const STORAGE_KEY = "kybercore.lang";
+export const LANGS = ["en", "es"];
 const listeners = new Set();
+/** @type {Record<string, Record<string, string>>} the languages fetched so far */
+const loaded = {};
+/** @type {Record<string, Promise<Record<string, string>>>} */
+const loading = {};
 let lang = initialLang();
+let wanted = lang; // the language of the latest setLang(), while it may still be loading
 
 function initialLang() {
   let stored = null;
@@ -12,9 +20,27 @@ function initialLang() {
   } catch {
     stored = null;
   }
-  if (stored && stored in STRINGS) return stored;
-  const wanted = (navigator.languages && navigator.languages[0]) || navigator.language || "en";
-  return wanted.toLowerCase().startsWith("es") ? "es" : "en";
+  if (stored && LANGS.includes(stored)) return stored;
+  const browser = (navigator.languages && navigator.languages[0]) || navigator.language || "en";
+  return browser.toLowerCase().startsWith("es") ? "es" : "en";
+}
+
+/** The strings of `code`, imported once (relative to this module, so under the page's
+ * versioned /static/v-<token>/ prefix). */
+function fetchLang(code) {
+  loading[code] ??= import(`./lang/${code}.js`).then(
+    (module) => (loaded[code] = module.default),
+    (error) => {
+      delete loading[code]; // offline for a moment: the next switch tries again
+      throw error;
+    },
+  );
+  return loading[code];
+}
+
+/** Load the current language: fleet.js awaits it before the first render. */
+export async function loadLang() {
+  await fetchLang(lang);
 }
 
 export function getLang() {
@@ -24,14 +50,26 @@ export function getLang() {
 /** A translated string; {name} placeholders are filled from vars. With vars.n === 1 the
  * key's "_one" form is used where there is one ("1 printer", "1 seleccionada"). */
 export function t(key, vars) {
-  const one = vars?.n === 1 ? STRINGS[lang][`${key}_one`] : undefined;
-  const text = one ?? STRINGS[lang][key] ?? STRINGS.en[key] ?? key;
+  /** @type {Record<string, string | undefined>} */
+  const strings = loaded[lang] ?? {};
+  const one = vars?.n === 1 ? strings[`${key}_one`] : undefined;
+  const text = one ?? strings[key] ?? key;
   if (!vars) return text;
   return text.replace(/\{(\w+)\}/g, (match, name) => (name in vars ? String(vars[name]) : match));
 }
 
-export function setLang(next) {
-  if (!(next in STRINGS) || next === lang) return;
+/** Switch to `next`, fetching its file on the first switch; the listeners run once its
+ * strings are there. Of quick successive switches, the last one wins. */
+export async function setLang(next) {
+  if (!LANGS.includes(next) || next === wanted) return;
+  wanted = next;
+  try {
+    await fetchLang(next);
+  } catch (error) {
+    if (wanted === next) wanted = lang; // the page stays in its language
+    throw error;
+  }
+  if (wanted !== next || next === lang) return; // switched again meanwhile
   lang = next;
   try {
     localStorage.setItem(STORAGE_KEY, next);
