@@ -15,11 +15,11 @@ import pytest
 
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.sim.stack import PrinterStack
+from tests.helpers import WATCHDOG
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 
 SIZE = 200 * 1024 * 1024
-SLOW_CALLBACK = 0.05
 
 
 def write_big_gcode(path: Path) -> None:
@@ -51,7 +51,7 @@ async def test_a_200mb_upload_never_blocks_the_loop(
     gc.collect()
     gc.disable()
     loop.set_debug(True)
-    loop.slow_callback_duration = SLOW_CALLBACK
+    loop.slow_callback_duration = WATCHDOG
     await asyncio.sleep(0)  # a yield, not a wait: debug mode times the steps after this one
     try:
         with source.open("rb") as content:
