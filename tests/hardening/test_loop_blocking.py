@@ -1,7 +1,7 @@
 """Nothing that can block goes on the event loop: while another process holds printers.json's
 lock (as ``kybercore printers edit`` does during its write), API edits wait in worker
 threads, reads of the fleet answer at once, and asyncio debug mode's slow-callback log
-(threshold 50 ms) stays silent."""
+(50 ms, with 5× slack) stays silent."""
 
 from __future__ import annotations
 
