@@ -220,11 +220,16 @@ class Sessions:
         heard_before, live.updated_at = live.updated_at, time.time()
         pid = printer.config.id
         if isinstance(event, StatusDelta):
-            apply_status(live.status, event.delta)  # the live state is ours alone
-            self.temperatures.feed(pid, live.status, event.delta)
-            self._follow_file(printer)
-            if print_ended(event.delta):
-                self._spawn(self._load_spool(printer))
+            delta = event.delta
+            apply_status(live.status, delta)  # the live state is ours alone
+            self.temperatures.feed(pid, live.status, delta)
+            stats = delta.get("print_stats")
+            # The file and the print's end are news only in a delta that names them; the
+            # others (nearly all: print_duration moves 4 times a second) skip both checks.
+            if stats is not None and ("filename" in stats or "state" in stats):
+                self._follow_file(printer)
+                if print_ended(delta):
+                    self._spawn(self._load_spool(printer))
         elif isinstance(event, StatusSnapshot):
             live.status = dict(event.status)
             self.temperatures.feed(pid, live.status, live.status)
