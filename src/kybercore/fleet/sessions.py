@@ -145,7 +145,7 @@ class Sessions:
             return None
         # What is published is what the next view must not go back from.
         printer.live.print_memory = tracked(printer.live)
-        return fuse(printer.config, printer.live)
+        return fuse(printer.config, printer.live, tracked=True)
 
     def apply(self, printers: list[PrinterConfig]) -> asyncio.Future[Any]:
         """Make the running sessions match ``printers`` (start, stop or restart them) and
