@@ -69,14 +69,17 @@ class Interest:
 
     def wants(self, delta: Status) -> bool:
         """Whether ``delta`` names an object (and field) of interest."""
-        objects, prefixes = self.objects, self.prefixes
-        for name, fields in delta.items():
-            if name in objects:
-                wanted = objects[name]
-                if wanted is None or not wanted.isdisjoint(fields):
-                    return True
-            elif prefixes and name.startswith(prefixes):
+        # Over the interest's few objects, not the delta's many: this runs per listener
+        # for every update, and most updates interest nobody but the dispatcher.
+        for name, wanted in self.objects.items():
+            fields = delta.get(name)
+            if fields is not None and (wanted is None or not wanted.isdisjoint(fields)):
                 return True
+        prefixes = self.prefixes
+        if prefixes:
+            for name in delta:
+                if name.startswith(prefixes):
+                    return True
         return False
 
 
