@@ -17,7 +17,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from kybercore.cli.serve import freeze_heap
+from kybercore.cli.serve import YOUNG_COLLECTION, freeze_heap
 from kybercore.fleet.service import FleetService
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry
@@ -35,10 +35,19 @@ cycle that freezing made immortal, 14,672 KiB (each cycle leaked ~15 KB)."""
 
 @pytest.fixture
 def unfrozen() -> Iterator[None]:
-    """Each test starts and ends with nothing frozen (freezing is process-wide)."""
+    """Each test starts and ends with nothing frozen and the collector's thresholds as
+    they were (both are process-wide)."""
+    threshold = gc.get_threshold()
     gc.unfreeze()
     yield
     gc.unfreeze()
+    gc.set_threshold(*threshold)
+
+
+def test_freezing_also_spaces_out_young_collections(unfrozen: None) -> None:
+    _, older, oldest = gc.get_threshold()
+    freeze_heap()
+    assert gc.get_threshold() == (YOUNG_COLLECTION, older, oldest)
 
 
 @pytest.fixture

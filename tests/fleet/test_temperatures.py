@@ -81,3 +81,42 @@ def test_deltas_without_heaters_and_removed_printers_leave_nothing() -> None:
     temps.feed("p", status, status)
     temps.forget("p")
     assert temps.series("p") == {}
+
+
+def test_odd_values_are_read_as_before_the_fast_path() -> None:
+    # Ints are numbers; a bool or text is not a temperature; an odd target reads as 0.
+    clock = Clock()
+    temps = Temperatures(clock)
+    for step, fields in enumerate(
+        (
+            {"temperature": 20, "target": 200},
+            {"temperature": True, "target": 200.0},
+            {"temperature": "hot", "target": 200.0},
+            {"temperature": 21.5, "target": False},
+            {"temperature": 22.5, "target": None},
+        )
+    ):
+        clock.now = 1_000_000.0 + step  # one sample a second
+        status = {"extruder": fields, "heater_bed": "not an object"}
+        temps.feed("p", status, status)
+    assert set(temps.series("p")) == {"extruder"}
+    series = temps.series("p")["extruder"]
+    assert series["temperature"] == [20.0, 21.5, 22.5]
+    assert series["target"] == [200.0, 0.0, 0.0]
+    assert series["t"] == [1_000_000.0, 1_000_003.0, 1_000_004.0]
+
+
+def test_a_full_ring_still_replaces_within_the_second() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    for step in range(CAPACITY + 3):
+        clock.now = 1_000_000.0 + step
+        status = {"extruder": heater(float(step))}
+        temps.feed("p", status, status)
+    clock.now += 0.5
+    status = {"extruder": heater(-1.0)}
+    temps.feed("p", status, status)
+    ring = temps._printers["p"]["extruder"]
+    assert ring.count == CAPACITY
+    assert ring.temperature[ring.last] == -1.0
+    assert ring.times[ring.last] == clock.now

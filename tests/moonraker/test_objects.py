@@ -12,6 +12,7 @@ from kybercore.moonraker.objects import (
     apply_status,
     klippy_state_after,
     merge_status,
+    status_objects,
     with_klippy_state,
 )
 
@@ -68,6 +69,41 @@ def test_merging_leaves_its_inputs_untouched_and_wins_field_by_field(
     # The in-place form the fleet service uses on its own live state gives the same result.
     apply_status(snapshot, delta)
     assert snapshot == merged
+
+
+def _reference_merge(target: dict[str, Any], new: dict[str, Any]) -> None:
+    """The recursive merge apply_status did before its first level was unrolled."""
+    for key, value in new.items():
+        if type(value) is dict:
+            if type(target.get(key)) is not dict:
+                target[key] = {}
+            _reference_merge(target[key], value)
+        else:
+            target[key] = value
+
+
+ODD_STATUS = st.dictionaries(
+    st.sampled_from(["extruder", "toolhead", "print_stats"]),
+    FIELDS | st.none() | st.integers() | st.lists(st.integers(), max_size=2),
+)
+
+
+@given(ODD_STATUS, ODD_STATUS)
+def test_the_in_place_merge_is_the_recursive_one_whatever_the_peer_sends(
+    status: dict[str, Any], delta: dict[str, Any]
+) -> None:
+    expected = copy.deepcopy(status)
+    _reference_merge(expected, copy.deepcopy(delta))
+    apply_status(status, delta)
+    assert status == expected
+
+
+def test_status_objects_drops_what_is_not_an_object_and_copies_only_then() -> None:
+    clean = {"extruder": {"temperature": 1.0}, "fan": {}}
+    assert status_objects(clean) is clean  # the per-update path: no copy
+    odd = {"extruder": {"temperature": 1.0}, "junk": 3, "list": [1]}
+    assert status_objects(odd) == {"extruder": {"temperature": 1.0}}
+    assert odd["junk"] == 3  # the input is left as it was
 
 
 def test_klippy_state_follows_notifications_and_webhooks() -> None:

@@ -1,6 +1,6 @@
 """Nothing that can block runs on the event loop during an upload: asyncio's debug mode logs
-every callback slower than the 50 ms promise (with 5× slack), and a 200 MB upload to a real Moonraker + Klippy printer
-must leave that log silent."""
+every callback slower than the 50 ms promise (with 5× slack), and a 200 MB upload to a real
+Moonraker + Klippy printer must leave that log silent."""
 
 from __future__ import annotations
 

@@ -13,6 +13,11 @@ def finite_number(value: object) -> float | None:
     """
     if type(value) is float:  # nearly always (decoded JSON): the fast path of fuse()
         return value if math.isfinite(value) else None
+    if type(value) is int:  # byte offsets, layers: finite unless past float's range
+        try:
+            return float(value)
+        except OverflowError:
+            return None
     if isinstance(value, bool) or not isinstance(value, int | str):
         return None
     try:

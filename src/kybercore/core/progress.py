@@ -82,7 +82,8 @@ class Estimate:
 
 def _obj(status: Mapping[str, Any], name: str) -> Mapping[str, Any]:
     value = status.get(name)
-    return value if isinstance(value, Mapping) else {}
+    # Exact dicts first (decoded JSON): the ABC check costs more than the rest of a call.
+    return value if type(value) is dict or isinstance(value, Mapping) else {}
 
 
 def _clamp(value: float) -> float:
@@ -149,6 +150,17 @@ def track(
         # The last progress seen before: a little early (homing, the prime line), never
         # late, however long the gap between the updates.
         extruding_from = memory.progress if memory.heating_seen else 0.0
+    if (filename, state, duration, progress, heating_seen, extruding_from) == (
+        memory.filename,
+        memory.state,
+        memory.duration,
+        memory.progress,
+        memory.heating_seen,
+        memory.extruding_from,
+    ):
+        # Tracked already (estimate() tracks what the fleet tracked just before): the
+        # same memory, not an equal copy (a frozen dataclass costs a microsecond to build).
+        return memory
     return PrintMemory(filename, state, duration, progress, heating_seen, extruding_from)
 
 
@@ -157,11 +169,16 @@ def estimate(
     status: Mapping[str, Any],
     meta: Mapping[str, Any] | None,
     now: float,
+    *,
+    tracked: bool = False,
 ) -> Estimate:
     """Progress and time left after this update; ``memory`` is what :func:`track` gave
     before (it is tracked again here, which changes nothing when it already saw this
-    update). ``now``: the time of the update, Unix seconds."""
-    memory = track(memory, status, meta)
+    update). ``now``: the time of the update, Unix seconds. ``tracked``: ``memory`` is
+    :func:`track`'s answer for this very status and metadata, so tracking it again is
+    skipped (the fleet tracks before every render; a second pass was a tenth of it)."""
+    if not tracked:
+        memory = track(memory, status, meta)
     left = _seconds_left(memory, status, meta or {})
     eta_at = now + left if left is not None and now > 0 else None
     return Estimate(memory.progress, left, eta_at)

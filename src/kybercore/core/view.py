@@ -52,9 +52,16 @@ class LivePrinter:
     """The active Spoolman spool, when Moonraker has ``[spoolman]`` and one is set."""
     spoolman: SpoolmanState = "unknown"
     """Why there is a spool or not (see :data:`~kybercore.core.spools.SpoolmanState`)."""
+    thumbnail_memo: tuple[dict[str, Any], str, Any] | None = field(
+        default=None, repr=False, compare=False
+    )
+    """(``file_meta`` object, filename, thumbnail) of the last :func:`fuse`."""
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
+    # A finite float (x - x is 0 only then) skips the call: a dozen of these per fuse().
+    if type(value) is float and value - value == 0.0:
+        return round(value, digits)
     number = finite_number(value)
     return None if number is None else round(number, digits)
 
@@ -158,8 +165,10 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
     )
 
 
-def fuse(config: PrinterConfig, live: LivePrinter) -> View:
-    """The printer as the API and the browser see it. Never contains the API key."""
+def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> View:
+    """The printer as the API and the browser see it. Never contains the API key.
+    ``tracked``: ``live.print_memory`` is :func:`tracked` for the current state already
+    (the fleet's render stores it just before), so it is not tracked a second time."""
     # Field types are whatever the peer sent: read numbers and text defensively, so one
     # misbehaving printer cannot break the view of the whole fleet.
     status = live.status
@@ -173,20 +182,11 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
     meta = _meta_of(live, filename)
     estimated = _num(meta.get("estimated_time"), 0)
     duration = _num(stats.get("print_duration"), 1) or 0.0
-    reckoned = estimate(live.print_memory, status, meta, live.updated_at)
+    reckoned = estimate(live.print_memory, status, meta, live.updated_at, tracked=tracked)
     busy = print_state in BUSY
     eta = reckoned.eta_seconds if busy else None
     eta_at = reckoned.eta_at if busy else None
-    thumbs = [t for t in meta.get("thumbnails") or [] if isinstance(t, dict)]
-    thumbnail = (
-        max(thumbs, key=lambda t: _num(t.get("width")) or 0).get("relative_path")
-        if thumbs
-        else None
-    )
-    if thumbnail and "/" in filename:
-        # Moonraker gives it relative to the file's own folder (the queue's uploads live in
-        # gcodes/kybercore/); the view says where it is under gcodes/.
-        thumbnail = f"{filename.rsplit('/', 1)[0]}/{thumbnail}"
+    thumbnail = _thumbnail(live, meta, filename)
     position = toolhead.get("position")
     if not isinstance(position, list) or not all(isinstance(v, (int, float)) for v in position):
         position = None
@@ -231,6 +231,26 @@ def fuse(config: PrinterConfig, live: LivePrinter) -> View:
         updated_at=round(live.updated_at, 1),
     )
     return view
+
+
+def _thumbnail(live: LivePrinter, meta: dict[str, Any], filename: str) -> Any:
+    """The largest thumbnail of the file, under gcodes/; worked out once per metadata
+    object (the fleet replaces ``file_meta``, never changes it in place)."""
+    memo = live.thumbnail_memo
+    if memo is not None and memo[0] is meta and memo[1] == filename:
+        return memo[2]
+    thumbs = [t for t in meta.get("thumbnails") or [] if isinstance(t, dict)]
+    thumbnail = (
+        max(thumbs, key=lambda t: _num(t.get("width")) or 0).get("relative_path")
+        if thumbs
+        else None
+    )
+    if thumbnail and "/" in filename:
+        # Moonraker gives it relative to the file's own folder (the queue's uploads live in
+        # gcodes/kybercore/); the view says where it is under gcodes/.
+        thumbnail = f"{filename.rsplit('/', 1)[0]}/{thumbnail}"
+    live.thumbnail_memo = (meta, filename, thumbnail)
+    return thumbnail
 
 
 def _z_offset(origin: Any) -> float | None:

@@ -39,7 +39,7 @@ from kybercore.fleet.actions import (
 )
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
 from kybercore.fleet.hub import ConsoleLine, Hub, Published
-from kybercore.fleet.sessions import FleetPrinter, Listener, Sessions
+from kybercore.fleet.sessions import FleetPrinter, Interest, Listener, Sessions
 from kybercore.fleet.web_ui import WebUiFinder
 from kybercore.fleet.webcams import WebcamProxy
 from kybercore.moonraker.client import MoonrakerClient
@@ -136,10 +136,11 @@ class FleetService:
         # Unpublished only when its first render failed: render here, to surface why.
         return view if view is not None else fuse(printer.config, printer.live)
 
-    def listen(self, listener: Listener) -> Callable[[], None]:
+    def listen(self, listener: Listener, interest: Interest | None = None) -> Callable[[], None]:
         """Hear every printer's session events (status deltas, connection and Klippy
-        changes, notifications) as they are taken in; returns the function that stops it."""
-        return self.sessions.listen(listener)
+        changes, notifications) as they are taken in; returns the function that stops it.
+        With ``interest``, only the status deltas that name something of it."""
+        return self.sessions.listen(listener, interest)
 
     def config(self, printer_id: str) -> PrinterConfig:
         """A printer's configuration (with the API key: never send it to a client)."""

@@ -34,7 +34,7 @@ Series = dict[str, list[Any]]
 class _Ring:
     """One heater's samples, oldest first, in fixed arrays (no object per sample)."""
 
-    __slots__ = ("count", "start", "target", "temperature", "times")
+    __slots__ = ("count", "last", "second", "start", "target", "temperature", "times")
 
     def __init__(self) -> None:
         self.times = array("d", bytes(8 * CAPACITY))
@@ -42,19 +42,24 @@ class _Ring:
         self.target = array("f", bytes(4 * CAPACITY))
         self.start = 0
         self.count = 0
+        self.last = 0
+        """Index of the newest sample (when ``count``)."""
+        self.second = math.nan
+        """``STEP_SECONDS`` step of the newest sample (NaN, equal to nothing, when empty)."""
 
     def _last(self) -> int:
-        return (self.start + self.count - 1) % CAPACITY
+        return self.last
 
     def put(self, at: float, temperature: float, target: float) -> None:
         """Record a sample; within the second of the last one it replaces that one."""
-        if self.count:
-            last = self._last()
-            if at // STEP_SECONDS == self.times[last] // STEP_SECONDS:
-                self.times[last], self.temperature[last], self.target[last] = (
-                    at, temperature, target,
-                )  # fmt: skip
-                return
+        second = at // STEP_SECONDS
+        # Three updates in four land in the second of the one before: only overwrite.
+        if second == self.second:
+            last = self.last
+            self.times[last], self.temperature[last], self.target[last] = (
+                at, temperature, target,
+            )  # fmt: skip
+            return
         if self.count == CAPACITY:
             index = self.start
             self.start = (self.start + 1) % CAPACITY
@@ -62,6 +67,7 @@ class _Ring:
             index = (self.start + self.count) % CAPACITY
             self.count += 1
         self.times[index], self.temperature[index], self.target[index] = at, temperature, target
+        self.last, self.second = index, second
 
     def gap(self, at: float) -> None:
         """End the series here: what follows is not a continuation of what came before."""
@@ -88,6 +94,11 @@ class _Ring:
         return {"t": t, "temperature": temps, "target": targets}
 
 
+def _number(value: Any) -> bool:
+    """An int or float (a bool is neither, whatever Python says)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def _value(stored: float) -> float | None:
     return None if math.isnan(stored) else round(stored, 2)
 
@@ -102,21 +113,26 @@ class Temperatures:
     def feed(self, printer_id: str, status: Mapping[str, Any], changed: Mapping[str, Any]) -> None:
         """Sample the heaters that ``changed`` names (a delta, or a whole snapshot) from the
         printer's merged ``status``. Called for every status update: cheap when no heater
-        is in it."""
-        heaters = [h for h in HEATERS if h in changed]
-        if not heaters:
-            return
-        now = self._clock()
-        rings = self._printers.setdefault(printer_id, {})
-        for heater in heaters:
+        is in it, and cheap when one is (exact type checks first: decoded JSON is floats)."""
+        rings: dict[str, _Ring] | None = None
+        now = 0.0
+        for heater in HEATERS:
+            if heater not in changed:
+                continue
             fields = status.get(heater)
-            if not isinstance(fields, Mapping):
+            if type(fields) is not dict and not isinstance(fields, Mapping):
                 continue
-            temperature, target = fields.get("temperature"), fields.get("target")
-            if not isinstance(temperature, int | float) or isinstance(temperature, bool):
+            temperature: Any = fields.get("temperature")
+            target: Any = fields.get("target")
+            if type(temperature) is not float and not _number(temperature):
                 continue
-            if not isinstance(target, int | float) or isinstance(target, bool):
+            if type(target) is not float and not _number(target):
                 target = 0.0
+            if rings is None:
+                now = self._clock()
+                rings = self._printers.get(printer_id)
+                if rings is None:
+                    rings = self._printers[printer_id] = {}
             ring = rings.get(heater)
             if ring is None:
                 ring = rings[heater] = _Ring()

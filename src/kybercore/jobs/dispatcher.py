@@ -40,7 +40,7 @@ from kybercore.errors import (
     PrinterUnreachable,
 )
 from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import FleetPrinter
+from kybercore.fleet.sessions import FleetPrinter, Interest
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job
 from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, is_heating, plan, power_group
@@ -56,6 +56,11 @@ from kybercore.moonraker.events import (
 from kybercore.moonraker.objects import Status
 
 log = logging.getLogger(__name__)
+
+# The deltas _hear() reads; the fleet need not call it with the others.
+_INTEREST: Final = Interest(
+    {"print_stats": None, "webhooks": None, "extruder": None, "heater_bed": None}
+)
 
 TICK_SECONDS: Final = 30.0
 """The slow tick: ``not_before`` times come due, and a safety check of every print."""
@@ -112,7 +117,7 @@ class Dispatcher:
 
     def start(self) -> None:
         """Listen to the fleet and run the loop."""
-        self._stop_listening = self._fleet.listen(self._hear)
+        self._stop_listening = self._fleet.listen(self._hear, _INTEREST)
         # A fuller spool may let a job that was refused for want of filament go there.
         self._stop_watching = self._fleet.sessions.watch_spools(lambda _printer: self.wake())
         self._loop_task = asyncio.create_task(self._loop(), name="queue-dispatcher")

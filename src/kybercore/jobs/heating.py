@@ -18,6 +18,7 @@ HEATING_MARGIN: Final = 5.0
 """°C below its target at which a heater still counts as heating (full power)."""
 
 _HEATER_PREFIXES: Final = ("extruder", "heater_bed", "heater_generic ")
+_FIRST_LETTERS: Final = "".join(sorted({prefix[0] for prefix in _HEATER_PREFIXES}))
 
 
 def is_heating(status: Mapping[str, Any]) -> bool:
@@ -28,7 +29,11 @@ def is_heating(status: Mapping[str, Any]) -> bool:
     there to keep a breaker on, so an unknown reading is taken on the safe side.
     """
     for name, heater in status.items():
-        if not name.startswith(_HEATER_PREFIXES) or not isinstance(heater, Mapping):
+        # Runs for every temperature update (the dispatcher's budget): a one-letter test
+        # turns most objects away before the prefix test, and exact dicts skip the ABC.
+        if name[:1] not in _FIRST_LETTERS or not name.startswith(_HEATER_PREFIXES):
+            continue
+        if type(heater) is not dict and not isinstance(heater, Mapping):
             continue
         target = finite_number(heater.get("target"))
         if target is None or target <= 0:

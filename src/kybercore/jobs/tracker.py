@@ -27,6 +27,7 @@ from typing import Any, Final
 from kybercore.core.numbers import finite_number
 from kybercore.errors import ActionRejected, KyberCoreError, MoonrakerRpcError, PrinterError
 from kybercore.fleet.service import FleetService
+from kybercore.fleet.sessions import Interest
 from kybercore.jobs.models import Attempt, AttemptState
 from kybercore.jobs.store import JobStore
 from kybercore.moonraker.client import MoonrakerClient
@@ -40,6 +41,9 @@ from kybercore.moonraker.events import (
 from kybercore.moonraker.objects import Status
 
 log = logging.getLogger(__name__)
+
+# The deltas _news() can find news in; the fleet need not call _hear with the others.
+_INTEREST: Final = Interest({"print_stats": frozenset({"state", "filename"}), "webhooks": None})
 
 HISTORY_WINDOW: Final = 50
 """Jobs of Moonraker's history searched (newest first) for an attempt's upload name."""
@@ -134,7 +138,7 @@ class Tracker:
 
     async def start(self) -> None:
         """Load every unresolved attempt and settle each printer that can already tell."""
-        self._stop_listening = self._fleet.listen(self._hear)
+        self._stop_listening = self._fleet.listen(self._hear, _INTEREST)
         for attempt in await self._store.attempts(live_only=True):
             self._live[attempt.printer] = attempt
         self.check_all()

@@ -26,7 +26,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
 from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import FleetPrinter
+from kybercore.fleet.sessions import FleetPrinter, Interest
 from kybercore.jobs.tables import gates, jobs
 from kybercore.ledger.history import (
     PAGE,
@@ -49,6 +49,9 @@ from kybercore.moonraker.events import (
 )
 
 log = logging.getLogger(__name__)
+
+# The only deltas _on_event reads: a print state changed (not temperatures, not positions).
+_INTEREST: Final = Interest({"print_stats": frozenset({"state"})})
 
 BACKFILLS_AT_ONCE: Final = 8
 """A thousand printers reconnecting after a restart catch up eight at a time."""
@@ -109,7 +112,7 @@ class LedgerService:
         """Close what a previous run left open, load the counts, start listening."""
         await self.timeline.recover()
         self.job_counts = await self.history.counts()
-        self._unlisten = self.fleet.listen(self._on_event)
+        self._unlisten = self.fleet.listen(self._on_event, _INTEREST)
         for work, name in (
             (self._writer, "ledger-writer"),
             (self._sweeper, "ledger-timeline"),

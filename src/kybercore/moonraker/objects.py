@@ -43,7 +43,17 @@ def apply_status(status: Status, delta: Mapping[str, Mapping[str, Any]]) -> None
     In place because this runs for every update of every printer: copying the printer's
     objects on each one was a tenth of the ingest cost at 20,000 updates/s.
     """
-    _merge_into(status, delta)
+    # The first level by hand: one call per object in the delta was a third of the merge.
+    for name, fields in delta.items():
+        objects = status.get(name)
+        if type(fields) is not dict or type(objects) is not dict:
+            _merge_into(status, {name: fields})
+            continue
+        for key, value in fields.items():
+            if type(value) is dict:
+                _merge_into(objects, {key: value})
+            else:
+                objects[key] = value
 
 
 def _merge_into(target: dict[str, Any], new: Mapping[str, Any]) -> None:
@@ -84,8 +94,13 @@ def klippy_state_in(status: Mapping[str, Any]) -> str | None:
 
 def status_objects(status: Mapping[str, Any]) -> Status:
     """The printer objects of a status or delta that are objects (``{name: {field: ...}}``);
-    anything else a broken or hostile peer sends is dropped, so consumers can merge safely."""
-    return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
+    anything else a broken or hostile peer sends is dropped, so consumers can merge safely.
+    When every entry is an object (always, from a sane Moonraker), ``status`` itself."""
+    for fields in status.values():
+        if type(fields) is not dict:
+            return {name: fields for name, fields in status.items() if isinstance(fields, dict)}
+    # Not copied: this runs for every update, and the decoded message is the caller's alone.
+    return status  # type: ignore[return-value]
 
 
 def snapshot_status(result: Any) -> Status | None:

@@ -381,7 +381,8 @@ class MoonrakerSession:
                 eventtime = params[1] if len(params) > 1 and isinstance(params[1], float) else 0.0
                 delta = status_objects(params[0])
                 self._emit(StatusDelta(delta=delta, eventtime=eventtime))
-                self._hear_klippy(klippy_state_in(delta))
+                if "webhooks" in delta:  # rarely: Klippy's state is news only when it moves
+                    self._hear_klippy(klippy_state_in(delta))
             return
         if method in ("notify_klippy_ready", "notify_klippy_disconnected"):
             self._klippy_event.set()

@@ -35,7 +35,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 from kybercore.aio import cancel_and_wait
 from kybercore.errors import ChannelNotFound, KyberCoreError
 from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import FleetPrinter
+from kybercore.fleet.sessions import FleetPrinter, Interest
 from kybercore.jobs.service import QueueService
 from kybercore.moonraker.events import Notification, SessionEvent, StatusDelta
 from kybercore.notify.detector import Detector, Observation, observe
@@ -53,6 +53,12 @@ log = logging.getLogger(__name__)
 WATCHED_OBJECTS: Final = ("print_stats", "webhooks", "filament_switch_sensor",
                           "filament_motion_sensor")  # fmt: skip
 """Status objects an :class:`Observation` reads; an update touching none is skipped."""
+INTEREST: Final = Interest(
+    {"print_stats": frozenset({"state", "filename", "message", "info"}), "webhooks": None},
+    prefixes=WATCHED_OBJECTS[2:],
+)
+"""The deltas the fleet passes on: those that can change an :class:`Observation` (not
+``print_duration`` and the like, which every update carries)."""
 STOP_GRACE: Final = 5.0
 """Seconds :meth:`NotifyService.stop` gives the events under way to reach the database."""
 
@@ -104,7 +110,7 @@ class NotifyService:
         await self.outbox.start()
         for printer in self.fleet.sessions.all():
             self._observe(printer)
-        self._unlisten = self.fleet.listen(self._on_event)
+        self._unlisten = self.fleet.listen(self._on_event, INTEREST)
         self._recording = asyncio.create_task(self._recorder(), name="notify-recorder")
         self._loops = [
             asyncio.create_task(self._ticker(), name="notify-tick"),
