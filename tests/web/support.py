@@ -92,3 +92,18 @@ def open_fleet(page: Page, url: str, count: int = 3) -> None:
 
 def tile(page: Page, printer_id: str) -> Locator:
     return page.locator(f'.tile[data-id="{printer_id}"]')
+
+
+FLEET_NAMES = (("fleet-a", "Printer A"), ("fleet-b", "Printer B"), ("fleet-c", "Printer C"))
+"""The shared fleet's printers and their names (tests/conftest.py)."""
+
+
+def expect_ready_tiles(page: Page) -> None:
+    """The shared fleet's three tiles show their names, Virtual · Lab, and ready."""
+    for printer_id, name in FLEET_NAMES:
+        card = tile(page, printer_id)
+        expect(card.locator(".name")).to_have_text(name)
+        expect(card.locator(".meta")).to_have_text("Virtual · Lab")
+        expect(card.locator(".pill")).to_have_text("Ready")
+        expect(card.locator(".badge.conn")).to_have_text("Online")
+        expect(card.locator(".badge.klippy")).to_have_text("Klipper ready")

@@ -14,7 +14,7 @@ from playwright.sync_api import Page, expect
 from kybercore.scale.broker import LocalServer
 from kybercore.sim.stack import PrinterStack
 from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
-from tests.web.support import open_fleet, tile
+from tests.web.support import expect_ready_tiles, open_fleet, tile
 
 pytestmark = pytest.mark.browser
 
@@ -36,17 +36,7 @@ def test_the_overview_on_a_front_is_live_and_acts(
 ) -> None:
     page = new_page()
     open_fleet(page, cluster.front.url)
-    for printer_id, name in (
-        ("fleet-a", "Printer A"),
-        ("fleet-b", "Printer B"),
-        ("fleet-c", "Printer C"),
-    ):
-        card = tile(page, printer_id)
-        expect(card.locator(".name")).to_have_text(name)
-        expect(card.locator(".meta")).to_have_text("Virtual · Lab")
-        expect(card.locator(".pill")).to_have_text("Ready")
-        expect(card.locator(".badge.conn")).to_have_text("Online")
-        expect(card.locator(".badge.klippy")).to_have_text("Klipper ready")
+    expect_ready_tiles(page)
     expect(page.locator(".count-chip[data-group=ready] strong")).to_have_text("3")
 
     # An action through the front runs on the printer's worker; the tile follows.
