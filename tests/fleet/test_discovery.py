@@ -1,16 +1,18 @@
 """Finding Moonraker servers over mDNS: the announcement read as Moonraker's [zeroconf]
 component writes it, and a real python-zeroconf announcer on loopback found by browsing.
 
-Why not Moonraker's own [zeroconf]: it announces on every interface of the machine
-(python-zeroconf's InterfaceChoice.All, not configurable), which would put multicast on the
-LAN; the tests keep to loopback. The announcer below sends what Moonraker sends, for a real
-virtual printer's Moonraker.
+Moonraker's own [zeroconf] announces on every interface of the machine (python-zeroconf's
+InterfaceChoice.All, not configurable), which would put multicast on the LAN: it is tested
+inside a loopback-only network namespace. The announcer below, in this process, sends what
+Moonraker sends, for the tests that need the shared printer and KyberCore's own process.
 """
 
 from __future__ import annotations
 
+import re
 import socket
 from collections.abc import AsyncIterator
+from pathlib import Path
 
 import httpx
 import pytest
@@ -19,6 +21,7 @@ from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
 from kybercore.fleet.discovery import SERVICE_TYPE, browse, found_of, slug
 from kybercore.sim.stack import PrinterStack
 from tests.conftest import MDNS
+from tests.fleet.zeroconf_netns import browse_in_netns, require_netns
 
 
 def moonraker_announcement(name: str, port: int, server: str, **props: str) -> AsyncServiceInfo:
@@ -90,3 +93,22 @@ async def test_browsing_finds_a_real_moonraker_announced_on_loopback(
     # The address found is a working Moonraker.
     answer = await http.get(f"{mine.url}/server/info")
     assert answer.json()["result"]["klippy_state"] == "ready"
+
+
+@pytest.mark.integration
+def test_browsing_finds_moonrakers_own_zeroconf_announcement(
+    runtimes: None, tmp_path: Path
+) -> None:
+    """Moonraker's [zeroconf] itself, not an imitation: in a loopback-only network namespace
+    (tests/fleet/zeroconf_netns.py), where its every-interface announcement stays local."""
+    require_netns()
+    result = browse_in_netns(tmp_path / "printer", "kc-zeroconf")
+    [mine] = result["found"]  # the namespace holds this one Moonraker only
+    assert mine["host"] == "127.0.0.1"
+    assert mine["port"] == result["port"]
+    assert mine["url"] == f"http://127.0.0.1:{result['port']}"
+    assert mine["version"] == result["moonraker_version"] != ""
+    # Moonraker names its instance after its UUID and the host name from [zeroconf].
+    assert re.fullmatch(r"[0-9a-f]{32}", mine["uuid"])
+    assert mine["name"] == f"Moonraker-{mine['uuid'][:8]} @ kc-zeroconf"
+    assert mine["suggested_id"] == "kc-zeroconf"

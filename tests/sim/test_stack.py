@@ -216,3 +216,11 @@ def _zombie(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
     except OSError:
         return True
+
+
+def test_zeroconf_is_written_only_when_asked_for() -> None:
+    # Moonraker's [zeroconf] multicasts on every interface: never by default on a test host.
+    args = (7125, Path("/tmp/k.sock"), ("127.0.0.1/32",), "http://127.0.0.1:8080")
+    assert "[zeroconf]" not in stack_module.render_moonraker_conf(*args)
+    conf = stack_module.render_moonraker_conf(*args, mdns_hostname="kc-lab")
+    assert "\n[zeroconf]\nmdns_hostname: kc-lab\nenable_ssdp: False\n" in conf

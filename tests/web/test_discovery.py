@@ -1,7 +1,8 @@
 """"Find printers" in Chromium: Moonraker servers announced over mDNS on loopback (a real
 python-zeroconf announcer sending what Moonraker's [zeroconf] sends, for real virtual
-printers; see tests/fleet/test_discovery.py for why not Moonraker's own), one already in
-the fleet, one added with one click and online at once."""
+printers: KyberCore's server browses the host's loopback, where Moonraker's own would
+multicast on the LAN too; tests/fleet/test_discovery.py browses Moonraker's own in a network
+namespace), one already in the fleet, one added with one click and online at once."""
 
 from __future__ import annotations
 

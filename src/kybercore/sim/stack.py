@@ -56,6 +56,10 @@ class StackOptions:
     trusted_clients: tuple[str, ...] = ("127.0.0.1/32",)
     with_klippy: bool = True
     """False starts Moonraker alone, as on a host whose Klippy never came up."""
+    mdns_hostname: str | None = None
+    """Enables Moonraker's ``[zeroconf]`` under this host name. Moonraker then announces on
+    every interface of the machine, not only its own address: start such a stack inside a
+    loopback-only network namespace, or it multicasts on the LAN."""
 
 
 @dataclass
@@ -278,7 +282,11 @@ class PrinterStack:
         (self.data_dir / "config" / "printer.cfg").write_text(render_printer_cfg(spec))
         (self.data_dir / "config" / "moonraker.conf").write_text(
             render_moonraker_conf(
-                self.port, self._klippy_socket, opts.trusted_clients, self.webcam_url
+                self.port,
+                self._klippy_socket,
+                opts.trusted_clients,
+                self.webcam_url,
+                mdns_hostname=opts.mdns_hostname,
             )
         )
 
@@ -351,11 +359,22 @@ class PrinterStack:
 
 
 def render_moonraker_conf(
-    port: int, klippy_socket: Path, trusted: tuple[str, ...], webcam_url: str
+    port: int,
+    klippy_socket: Path,
+    trusted: tuple[str, ...],
+    webcam_url: str,
+    *,
+    mdns_hostname: str | None = None,
 ) -> str:
     """A moonraker.conf for a local printer that never reaches out to the internet, with its
     webcam registered as a real one is, so clients find it in ``/server/webcams/list``."""
     trusted_lines = "".join(f"\n    {net}" for net in trusted)
+    # SSDP stays off: only the mDNS announcement is KyberCore's to find.
+    zeroconf = (
+        f"\n[zeroconf]\nmdns_hostname: {mdns_hostname}\nenable_ssdp: False\n"
+        if mdns_hostname
+        else ""
+    )
     return f"""\
 [server]
 host: 127.0.0.1
@@ -387,7 +406,7 @@ target_fps_idle: 1
 stream_url: {webcam_url}/stream
 snapshot_url: {webcam_url}/snapshot
 aspect_ratio: 4:3
-"""
+{zeroconf}"""
 
 
 def free_port() -> int:
