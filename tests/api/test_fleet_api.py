@@ -399,3 +399,40 @@ async def test_a_printer_is_saved_only_once_its_moonraker_answers_when_asked(
         assert twice.json()["error"]["reasons"][0]["code"] == "url_taken"
     finally:
         await api.delete("/api/printers/probe")
+
+
+async def test_bulk_starts_are_paced_by_the_server(
+    api: httpx.AsyncClient, mirror: BrowserMirror
+) -> None:
+    name = f"paced-{uuid.uuid4().hex[:6]}.gcode"
+    for printer in ("fleet-a", "fleet-b"):
+        answer = await api.post(
+            f"/api/printers/{printer}/files", files={"file": (name, travel_gcode(moves=40))}
+        )
+        assert answer.status_code == 201, answer.text
+    stagger = 3.0
+    printing_at: dict[str, float] = {}
+
+    async def watch(printer: str) -> None:
+        await mirror.wait(lambda: job_state(mirror, printer)() == "printing", what=printer)
+        printing_at[printer] = time.monotonic()
+
+    watchers = [asyncio.ensure_future(watch(p)) for p in ("fleet-a", "fleet-b")]
+    sent = time.monotonic()
+    answer = await api.post(
+        "/api/fleet/actions/start",
+        json={"printer_ids": ["fleet-a", "fleet-b"], "filename": name, "stagger_seconds": stagger},
+    )
+    took = time.monotonic() - sent
+    assert answer.status_code == 200, answer.text
+    assert [r["ok"] for r in answer.json()["results"]] == [True, True]
+    await asyncio.gather(*watchers)
+    # Lower bounds only (a busy machine can stretch them, never shorten them): the server
+    # waited, and the second printer started that much after the first (less the browser
+    # feed's coalescing, a status interval and a tick).
+    assert took >= stagger
+    assert printing_at["fleet-b"] - printing_at["fleet-a"] >= stagger - 0.5
+    cancel = await api.post(
+        "/api/fleet/actions/cancel", json={"printer_ids": ["fleet-a", "fleet-b"]}
+    )
+    assert [r["ok"] for r in cancel.json()["results"]] == [True, True], cancel.text

@@ -258,3 +258,31 @@ def test_requests_refused_before_they_are_read_show_the_backends_message(
         "Requests that change printers must come from KyberCore's own page."
     )
     assert DOOMED in file_names(api, "fleet-a")
+
+
+@pytest.mark.usefixtures("remove_uploads")
+def test_staggered_starts_are_paced_by_the_server(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    open_fleet(page, kybercore_server.url)
+    for name in ("Printer A", "Printer B"):
+        page.get_by_role("checkbox", name=f"Select {name}").check()
+    page.get_by_role("region", name="Bulk actions").locator("[data-bulk=upload]").click()
+    dialog = page.get_by_role("dialog", name="Upload to 2 printers")
+    payload: FilePayload = {"name": SHARED, "mimeType": "text/plain", "buffer": slow_print(80)}
+    dialog.locator("input[type=file]").set_input_files(payload)
+    dialog.get_by_label("Start printing after the upload").check()
+    dialog.get_by_label("Seconds between starts").fill("2")
+    with page.expect_request(
+        lambda r: r.url.endswith("/api/fleet/actions/start") and r.method == "POST"
+    ) as started:
+        dialog.get_by_role("button", name="Upload", exact=True).click()
+    # One request: the server keeps the pace, not this page.
+    assert started.value.post_data_json["stagger_seconds"] == 2
+    for printer_id in ("fleet-a", "fleet-b"):
+        row = dialog.locator(f"[data-printer={printer_id}]")
+        expect(row).to_contain_text(f"Uploaded {SHARED} and started printing it.", timeout=30_000)
+        expect(tile(page, printer_id).locator(".pill")).to_have_text("Printing")
+    dialog.get_by_role("button", name="Done").click()
+    cancel = api.post("/api/fleet/actions/cancel", json={"printer_ids": ["fleet-a", "fleet-b"]})
+    assert [r["ok"] for r in cancel.json()["results"]] == [True, True], cancel.text

@@ -51,10 +51,12 @@ async def health(service: Service) -> dict[str, Any]:
 async def act_many(
     service: Service, action: ActionName, body: FleetActionRequest
 ) -> dict[str, Any]:
-    """One action on several printers at once; one result per printer."""
+    """One action on several printers at once (starts paced by ``stagger_seconds``); one
+    result per printer."""
     outcomes = await service.act_many(
-        body.printer_ids, action, body.params(), force=body.force, confirm=body.confirm
-    )
+        body.printer_ids, action, body.params(), force=body.force, confirm=body.confirm,
+        stagger=body.stagger_seconds,
+    )  # fmt: skip
     return {"results": [action_result(o) for o in outcomes]}
 
 

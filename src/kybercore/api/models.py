@@ -89,10 +89,20 @@ class FleetActionRequest(ActionRequest):
     printer_ids: list[str] = Field(
         min_length=1, max_length=10_000, description="Printers to act on, by id."
     )
+    stagger_seconds: float = Field(
+        default=0.0,
+        ge=0,
+        le=600,
+        description="For start: seconds between one printer's start and the next, in the "
+        "order given (a room of printers heating at once can trip a breaker). The server "
+        "keeps the pace; closing the page does not stop it.",
+    )
 
     def params(self) -> dict[str, Any]:
-        """The action's parameters: which printers is not one of them."""
-        return self.model_dump(exclude={"force", "confirm", "printer_ids"}, exclude_none=True)
+        """The action's parameters: which printers, and their pace, are not among them."""
+        return self.model_dump(
+            exclude={"force", "confirm", "printer_ids", "stagger_seconds"}, exclude_none=True
+        )
 
 
 class GcodeRequest(_In):

@@ -262,8 +262,11 @@ class FleetService:
         *,
         force: bool = False,
         confirm: bool = False,
+        stagger: float = 0.0,
     ) -> list[ActionOutcome]:
-        """One action on many printers at once; one outcome per printer, in order."""
+        """One action on many printers at once; one outcome per printer, in order. With
+        ``stagger``, starts go one at a time, ``stagger`` seconds after the last one that
+        happened (the heaters of a room do not all switch on together)."""
 
         async def one(printer_id: str) -> ActionOutcome:
             try:
@@ -271,7 +274,21 @@ class FleetService:
             except KyberCoreError as exc:
                 return failed_outcome(printer_id, action, exc)
 
-        return list(await asyncio.gather(*(one(pid) for pid in dict.fromkeys(printer_ids))))
+        ids = list(dict.fromkeys(printer_ids))
+        if action != "start" or stagger <= 0:
+            return list(await asyncio.gather(*(one(pid) for pid in ids)))
+        loop = asyncio.get_running_loop()
+        outcomes: list[ActionOutcome] = []
+        last_start: float | None = None
+        for printer_id in ids:
+            if last_start is not None:
+                # The pace asked for (not a poll): a refused start does not count.
+                await asyncio.sleep(max(0.0, last_start + stagger - loop.time()))
+            outcome = await one(printer_id)
+            if outcome.ok:
+                last_start = loop.time()
+            outcomes.append(outcome)
+        return outcomes
 
     async def upload(
         self,

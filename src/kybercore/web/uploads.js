@@ -143,11 +143,21 @@ export async function uploadDialog(ids, initialFiles = []) {
 }
 
 async function uploadMany(ids, file, { start, delay, rows }) {
+  // With a pace, the files go up first and the server starts them one by one: it keeps
+  // the pace even if this page is closed.
+  const paced = start && delay > 0 && ids.length > 1;
+  /** @type {{id: string, error: unknown}[]} */
   const needConfirm = [];
+  /** @type {string[]} */
+  const stored = [];
+  /** @param {string} id */
   const one = async (id) => {
     const row = rows.get(id);
-    const outcome = await uploadTo(id, file, { start, onProgress: (f) => row.progress(f) });
-    if (outcome.ok) row.done("ok", outcome.message);
+    const outcome = await uploadTo(id, file, { start: start && !paced, onProgress: (f) => row.progress(f) });
+    if (outcome.ok && paced) {
+      stored.push(id);
+      row.done("warn", t("upload.waiting_start"));
+    } else if (outcome.ok) row.done("ok", outcome.message);
     else if (outcome.needsConfirm) {
       needConfirm.push({ id, error: outcome.error });
       row.progress(1); // uploaded; only the start waits for a confirmation
@@ -157,29 +167,41 @@ async function uploadMany(ids, file, { start, delay, rows }) {
       row.done("warn", uploadFailure(outcome));
     } else row.done("fail", uploadFailure(outcome));
   };
-  if (delay > 0) {
-    for (const [index, id] of ids.entries()) {
-      if (index) await new Promise((resolve) => setTimeout(resolve, delay));
-      await one(id);
-    }
-  } else {
-    const queue = [...ids];
-    await Promise.all(Array.from({ length: Math.min(PARALLEL, queue.length) }, async () => {
-      while (queue.length) await one(queue.shift());
-    }));
-  }
-  for (const { id, error } of needConfirm) {
-    if (!(await confirmWarnings(id, warningsOf(error)))) {
-      rows.get(id).done("warn", t("upload.not_started"));
-      continue;
-    }
+  const queue = [...ids];
+  await Promise.all(Array.from({ length: Math.min(PARALLEL, queue.length) }, async () => {
+    while (queue.length) await one(queue.shift());
+  }));
+  /**
+   * Start the stored file on printers, paced by the server when asked to.
+   * @param {string[]} targets
+   * @param {boolean} confirm
+   */
+  const startOn = async (targets, confirm) => {
+    if (!targets.length) return;
+    const pace = paced ? delay / 1000 : 0;
+    let results;
     try {
-      await api.act(id, "start", { filename: file.name, confirm: true });
-      rows.get(id).done("ok", t("done.upload_start", { filename: file.name }));
+      ({ results } = await api.actMany("start", targets, { filename: file.name, confirm, stagger_seconds: pace }));
     } catch (err) {
-      rows.get(id).done("fail", messageOf(err));
+      for (const id of targets) rows.get(id).done("fail", messageOf(err));
+      return;
     }
+    for (const result of results) {
+      const row = rows.get(result.printer_id);
+      if (result.ok) row.done("ok", t("done.upload_start", { filename: file.name }));
+      else if (result.code === "confirmation_required" && !confirm) {
+        needConfirm.push({ id: result.printer_id, error: new ApiError(result.status, result) });
+        row.done("warn", t("upload.needs_confirm"));
+      } else row.done("warn", t("upload.stored_not_started", { reason: messageOf(new ApiError(result.status, result)) }));
+    }
+  };
+  if (paced) await startOn(ids.filter((id) => stored.includes(id)), false);
+  const confirmed = [];
+  for (const { id, error } of needConfirm) {
+    if (await confirmWarnings(id, warningsOf(error))) confirmed.push(id);
+    else rows.get(id).done("warn", t("upload.not_started"));
   }
+  await startOn(confirmed, true);
   // A file stored but not started (warn) is not done either: the user asked for a print.
   const failures = ids.filter((id) => !rows.get(id).row.classList.contains("ok")).length;
   toast({

@@ -233,6 +233,7 @@ export default {
   "upload.title_one": "Upload to {name}",
   "upload.title_many": "Upload to {n} printers",
   "upload.go": "Upload",
+  "upload.waiting_start": "Uploaded; the server starts the printers one by one…",
   "upload.needs_confirm": "Uploaded; starting needs confirmation.",
   "upload.not_started": "Uploaded, not started.",
   "upload.summary": "{ok} of {n} uploads succeeded.",

@@ -233,6 +233,7 @@ export default {
   "upload.title_one": "Subir a {name}",
   "upload.title_many": "Subir a {n} impresoras",
   "upload.go": "Subir",
+  "upload.waiting_start": "Subido; el servidor arranca las impresoras una a una…",
   "upload.needs_confirm": "Subido; para empezar hace falta confirmar.",
   "upload.not_started": "Subido, sin empezar.",
   "upload.summary": "{ok} de {n} subidas correctas.",
