@@ -121,6 +121,12 @@ def _violations(page: Page) -> list[dict[str, Any]]:
     return [v for v in result if v["impact"] in BLOCKING or v["id"] in ALSO_BLOCKING]
 
 
+WALK_TIMEOUT: Final = 600
+"""Seconds one walk over every screen may take: ~60-100 s on an idle machine, several times
+that on a shared, busy one (pytest's own 120 s default would kill the browser mid-walk)."""
+
+
+@pytest.mark.timeout(WALK_TIMEOUT)
 @pytest.mark.parametrize("theme", ["light", "dark"])
 @pytest.mark.parametrize("locale", ["en-US", "es-ES"])
 def test_every_screen_has_no_serious_accessibility_violation(
@@ -180,6 +186,7 @@ _WORDS = """() => {
 }"""
 
 
+@pytest.mark.timeout(WALK_TIMEOUT)
 def test_every_screen_speaks_spanish(
     new_page: Callable[..., Page], kybercore_server: KyberCoreServer, api: httpx.Client
 ) -> None:
