@@ -280,15 +280,11 @@ class PrinterStack:
             bed_max_temp=opts.bed_max_temp,
         )
         (self.data_dir / "config" / "printer.cfg").write_text(render_printer_cfg(spec))
-        (self.data_dir / "config" / "moonraker.conf").write_text(
-            render_moonraker_conf(
-                self.port,
-                self._klippy_socket,
-                opts.trusted_clients,
-                self.webcam_url,
-                mdns_hostname=opts.mdns_hostname,
-            )
-        )
+        conf = render_moonraker_conf(
+            self.port, self._klippy_socket, opts.trusted_clients, self.webcam_url,
+            mdns_hostname=opts.mdns_hostname,
+        )  # fmt: skip
+        (self.data_dir / "config" / "moonraker.conf").write_text(conf)
 
     def _spawn(self, name: str, command: list[str]) -> None:
         self._check_not_running(name)
@@ -359,22 +355,14 @@ class PrinterStack:
 
 
 def render_moonraker_conf(
-    port: int,
-    klippy_socket: Path,
-    trusted: tuple[str, ...],
-    webcam_url: str,
-    *,
+    port: int, klippy_socket: Path, trusted: tuple[str, ...], webcam_url: str, *,
     mdns_hostname: str | None = None,
-) -> str:
+) -> str:  # fmt: skip
     """A moonraker.conf for a local printer that never reaches out to the internet, with its
     webcam registered as a real one is, so clients find it in ``/server/webcams/list``."""
     trusted_lines = "".join(f"\n    {net}" for net in trusted)
     # SSDP stays off: only the mDNS announcement is KyberCore's to find.
-    zeroconf = (
-        f"\n[zeroconf]\nmdns_hostname: {mdns_hostname}\nenable_ssdp: False\n"
-        if mdns_hostname
-        else ""
-    )
+    zeroconf = f"\n[zeroconf]\nmdns_hostname: {mdns_hostname}\nenable_ssdp: False\n"
     return f"""\
 [server]
 host: 127.0.0.1
@@ -406,7 +394,7 @@ target_fps_idle: 1
 stream_url: {webcam_url}/stream
 snapshot_url: {webcam_url}/snapshot
 aspect_ratio: 4:3
-{zeroconf}"""
+{zeroconf if mdns_hostname else ""}"""
 
 
 def free_port() -> int:
