@@ -3,6 +3,7 @@ link to the queue's attempts, the state timeline and the statistics drawn from t
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import pytest
@@ -195,6 +196,32 @@ async def test_intervals_open_on_change_close_on_the_next_and_recover_after_a_cr
     async with database.connect() as conn:
         assert await conn.scalar(select(func.count()).where(s.ended_at.is_(None))) == 0
         assert await conn.scalar(select(s.ended_at - T0).where(s.started_at == T0 + 600)) == 600
+
+
+async def test_a_flush_cancelled_mid_write_neither_doubles_nor_loses_an_interval(
+    database: AsyncEngine,
+) -> None:
+    # KyberCore stopping cancels the timeline's writer wherever it is, the commit in the
+    # driver's thread included: try every point, as many loop turns in as it takes.
+    s = printer_states.c
+    turns = 0
+    while True:
+        timeline = Timeline(database)
+        printer = f"p{turns}"
+        timeline.observe(printer, "idle", T0)
+        writer = asyncio.ensure_future(timeline.flush())
+        for _ in range(turns):
+            await asyncio.sleep(0)
+        finished = writer.done()
+        writer.cancel()
+        await asyncio.wait({writer})
+        await timeline.flush()  # what stopping writes next
+        async with database.connect() as conn:
+            rows = await conn.scalar(select(func.count()).where(s.printer == printer))
+        assert rows == 1, f"cancelled after {turns} loop turns: {rows} intervals"
+        if finished:
+            break
+        turns += 1
 
 
 async def test_statistics_per_printer_and_day(database: AsyncEngine) -> None:

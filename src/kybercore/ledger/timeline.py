@@ -8,6 +8,7 @@ status updates a second cause no writes while their states stay the same.
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -68,6 +69,7 @@ class Timeline:
         self._engine = engine
         self._current: dict[str, State] = {}
         self._pending: list[Change] = []
+        self._writing = asyncio.Lock()
 
     @property
     def current(self) -> dict[str, State]:
@@ -88,7 +90,12 @@ class Timeline:
                 self._pending.append(Change(printer, None, when))
 
     async def flush(self) -> int:
-        """Write the changes noted since the last flush in one transaction; how many."""
+        """Write the changes noted so far in one transaction; how many. When it returns,
+        every change noted before the call is in the table (one write at a time)."""
+        async with self._writing:
+            return await self._flush()
+
+    async def _flush(self) -> int:
         changes, self._pending = self._pending, []
         if not changes:
             return 0
@@ -117,11 +124,17 @@ class Timeline:
             if rows:
                 await conn.execute(printer_states.insert(), rows)
 
+        write = asyncio.ensure_future(transaction(self._engine, work))
         try:
-            await transaction(self._engine, work)
-        except BaseException:
-            self._pending[:0] = changes  # written next time, in order
-            raise
+            await asyncio.shield(write)
+        finally:
+            # Cancelled while writing (KyberCore stopping): the commit may be under way in
+            # the driver's thread and cannot be taken back. Its end says whether the rows
+            # are in; taking them again after a commit would write each interval twice.
+            if not write.done():
+                await asyncio.wait({write})
+            if write.cancelled() or write.exception() is not None:
+                self._pending[:0] = changes  # written next time, in order
         return len(changes)
 
     async def recover(self) -> None:
