@@ -21,6 +21,8 @@ def printer(printer_id: str, temperature: float = 20.0, progress: float = 0.0) -
         "connection": "online",
         "klippy_state": "ready",
         "job": {"state": "printing", "progress": progress, "eta_seconds": 60, "layer": 3},
+        "spool": {"id": 7, "material": "PLA", "remaining_g": 612.0},
+        "spoolman": "active",
         "extruder": {"temperature": temperature, "target": 210.0},
         "updated_at": 1.0 + temperature,
     }
@@ -56,6 +58,8 @@ def test_the_slim_summary_keeps_what_the_dashboard_sorts_by_and_drops_the_rest()
         "connection": "online",
         "klippy_state": "ready",
         "job": {"state": "printing", "progress": 0.0, "eta_seconds": 60},
+        "spool": {"id": 7, "material": "PLA", "remaining_g": 612.0},
+        "spoolman": "active",
     }
     assert slim({"extruder": {"temperature": 21.0}, "job": {"layer": 4}}) == {}
 

@@ -33,6 +33,10 @@ SLIM_KEYS: Final = frozenset(PrinterPublic.model_fields) | {
     "klippy_message",
     "actions",
     "job",
+    # The Spools view maps every printer's spool while no tile is on screen; a spool changes
+    # only when one is picked or a print ends.
+    "spool",
+    "spoolman",
 }
 """Top-level view keys of the slim summary."""
 SLIM_JOB_KEYS: Final = frozenset(
