@@ -25,7 +25,7 @@ def test_stopping_the_backend_shows_the_banner_and_restarting_clears_it(
     console_errors.expect(r"ERR_CONNECTION_REFUSED")
     kybercore_server.stop()
     try:
-        expect(banner).to_be_visible(timeout=10_000)
+        expect(banner).to_be_visible(timeout=20_000)
         expect(banner).to_have_attribute("role", "alert")
         expect(banner).to_contain_text("Connection to KyberCore lost.")
         expect(banner).to_contain_text("The data shown is from")
