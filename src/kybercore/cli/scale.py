@@ -25,6 +25,7 @@ import typer
 from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, PrintersFile
 from kybercore.cli.output import console, fail
 from kybercore.errors import KyberCoreError
+from kybercore.registry.models import PrinterConfig
 
 NatsUrl = Annotated[
     str,
@@ -69,7 +70,11 @@ def ingest(
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     except OSError as exc:
-        raise fail(f"Cannot reach NATS at {nats_url} ({exc}). Start nats-server -js.") from None
+        raise _unreachable(nats_url, exc) from None
+
+
+def _unreachable(url: str, exc: OSError) -> typer.Exit:
+    return fail(f"Cannot reach NATS at {url} ({exc}). Is nats-server -js running there?")
 
 
 async def _ingest(url: str, name: str, slots: int, ttl: float, grace: float, folder: Path) -> None:
@@ -104,10 +109,15 @@ def front(
     from kybercore.api.app import create_app
     from kybercore.cli.serve import _access, _allowed_hosts, _default_database
     from kybercore.registry.store import PrinterRegistry, default_printers_path
+    from kybercore.scale.broker import reachable
     from kybercore.scale.front import FrontFleet
     from kybercore.sim.stack import ensure_port_free
 
     path = printers_file or default_printers_path()
+    try:
+        asyncio.run(reachable(nats_url))
+    except OSError as exc:
+        raise _unreachable(nats_url, exc) from None
     try:
         ensure_port_free(port, host)
         hosts = _allowed_hosts(host, allowed_host or [])
@@ -123,6 +133,49 @@ def front(
         fleet_factory=lambda http: FrontFleet(nats_url, http, slots=slots, printers_file=path),
     )
     uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets-sansio")
+
+
+def export_printers(
+    nats_url: NatsUrl,
+    out: Annotated[Path, typer.Option("--out", help="The printers.json to write.")],
+    with_keys: Annotated[
+        bool, typer.Option(help="Include the Moonraker API keys (the file is 0600 either way).")
+    ] = False,
+) -> None:
+    """Write the registry on NATS to a printers.json (a backup, or a way back to ``serve``).
+    The file is replaced atomically; the old one is kept as .bak."""
+    from kybercore.registry.store import write_printers
+
+    try:
+        printers = asyncio.run(_registry_printers(nats_url, with_keys))
+    except OSError as exc:
+        raise _unreachable(nats_url, exc) from None
+    if not with_keys:
+        keyed = [p.id for p in printers if p.api_key is not None]
+        printers = [p.model_copy(update={"api_key": None}) for p in printers]
+        if keyed:
+            console.print(
+                f"{len(keyed)} printers have an API key, not written ({', '.join(keyed)}); "
+                "--with-keys writes them."
+            )
+    try:
+        write_printers(out, printers)
+    except OSError as exc:
+        raise fail(f"Cannot write {out} ({exc}).") from None
+    console.print(f"{len(printers)} printers written to {out}.")
+
+
+async def _registry_printers(url: str, with_keys: bool) -> list[PrinterConfig]:
+    from kybercore.scale.broker import connect
+    from kybercore.scale.registry import KvRegistry
+
+    nc = await connect(url, "kybercore-export")
+    try:
+        registry = KvRegistry(read_keys=with_keys)
+        await registry.open(nc)
+        return await registry.printers()
+    finally:
+        await nc.close()
 
 
 def demo_workers(workers: int, host: str, port: int, printers_file: Path) -> None:

@@ -7,14 +7,18 @@ up reconnecting after about two minutes and notices a dead TCP connection after 
 
 from __future__ import annotations
 
+import asyncio
 import json
+import logging
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Final
+from urllib.parse import urlsplit
 
 import nats
 from nats.aio.client import Client
@@ -23,10 +27,17 @@ from kybercore.errors import LaunchError
 
 PING_SECONDS: Final = 2.0
 """A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
+ERROR_EVERY: Final = 10.0
+
+log = logging.getLogger(__name__)
 
 
 async def connect(url: str, name: str) -> Client:
-    """A connection to ``url`` that reconnects forever (half a second apart)."""
+    """A connection to ``url`` that, once made, reconnects forever (half a second apart).
+
+    A broker that is not there at the start is an :class:`OSError` at once: nats-py would
+    retry the first connection forever too, printing a traceback each time."""
+    await reachable(url)
     return await nats.connect(
         url,
         name=name,
@@ -35,7 +46,39 @@ async def connect(url: str, name: str) -> Client:
         ping_interval=PING_SECONDS,
         max_outstanding_pings=2,
         connect_timeout=5,
+        error_cb=_errors(url),
     )
+
+
+async def reachable(url: str) -> None:
+    """Whether one of the servers in ``url`` takes a TCP connection; OSError saying why not."""
+    errors = []
+    for server in url.split(","):
+        parts = urlsplit(server.strip() if "://" in server else f"nats://{server.strip()}")
+        try:
+            _, writer = await asyncio.wait_for(
+                asyncio.open_connection(parts.hostname, parts.port or 4222), 5
+            )
+        except (OSError, TimeoutError) as exc:
+            errors.append(f"{server.strip()}: {exc or 'no answer in 5 s'}")
+            continue
+        writer.close()
+        return
+    raise OSError("; ".join(errors))
+
+
+def _errors(url: str) -> Callable[[Exception], Awaitable[None]]:
+    """nats-py's error callback: one line, at most every ERROR_EVERY seconds (a broker
+    restart makes it fail twice a second until the broker is back)."""
+    said = -ERROR_EVERY
+
+    async def note(exc: Exception) -> None:
+        nonlocal said
+        if time.monotonic() - said >= ERROR_EVERY:
+            said = time.monotonic()
+            log.warning("NATS at %s: %s (retrying)", url, exc or type(exc).__name__)
+
+    return note
 
 
 def server_binary() -> Path:
