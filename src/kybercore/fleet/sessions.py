@@ -174,6 +174,8 @@ class Sessions:
                 self._hub.mark(printer_id)
         for printer_id, config in wanted.items():
             current = self._printers.get(printer_id)
+            if current is not None and current.config == config:
+                continue  # its view did not change: nothing to render or send
             if current is not None and not _needs_new_session(current.config, config):
                 current.config = config
             else:
