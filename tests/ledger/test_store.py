@@ -198,6 +198,30 @@ async def test_intervals_open_on_change_close_on_the_next_and_recover_after_a_cr
         assert await conn.scalar(select(s.ended_at - T0).where(s.started_at == T0 + 600)) == 600
 
 
+async def test_a_new_owner_ends_the_old_ones_interval_but_not_the_reverse(
+    database: AsyncEngine,
+) -> None:
+    # Two ingest workers on NATS: `old` held the printer, was paused past its lease, and
+    # `new` took it over; `old` wakes up and lets go of it afterwards.
+    old, new = Timeline(database), Timeline(database)
+    old.observe("p", "idle", T0)
+    await old.flush()
+    new.observe("p", "idle", T0 + 10)
+    await new.flush()
+    old.forget(["p"], T0 + 20)
+    await old.flush()
+    new.observe("p", "printing", T0 + 30)
+    await new.flush()
+    s = printer_states.c
+    async with database.connect() as conn:
+        intervals = (
+            await conn.execute(select(s.state, s.started_at - T0, s.ended_at - T0).order_by(s.id))
+        ).all()
+    assert [tuple(i) for i in intervals] == [
+        ("idle", 0, 10), ("idle", 10, 30), ("printing", 30, None)
+    ]  # fmt: skip
+
+
 async def test_a_flush_cancelled_mid_write_neither_doubles_nor_loses_an_interval(
     database: AsyncEngine,
 ) -> None:

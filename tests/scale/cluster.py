@@ -29,13 +29,14 @@ TTL = 3.0
 class WorkerProcess:
     """One ``kybercore ingest`` subprocess."""
 
-    def __init__(self, name: str, url: str, folder: Path) -> None:
+    def __init__(self, name: str, url: str, folder: Path, *extra_args: str) -> None:
         self.name = name
         self.folder = folder / name
         self.folder.mkdir(parents=True, exist_ok=True)
         command = [
             sys.executable, "-m", "kybercore", "ingest", "--nats", url, "--worker-id", name,
             "--slots", str(SLOTS), "--lease-ttl", str(TTL), "--dir", str(self.folder),
+            *extra_args,
         ]  # fmt: skip
         with (self.folder / "worker.log").open("ab") as log:
             self.proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
@@ -77,10 +78,11 @@ SETTLE = 5 * (TTL + TTL / 3)
 
 @contextlib.contextmanager
 def two_workers_and_a_front(
-    stacks: list[PrinterStack], broker: LocalServer, folder: Path
+    stacks: list[PrinterStack], broker: LocalServer, folder: Path, database_url: str = ""
 ) -> Iterator[Cluster]:
     """``stacks`` as a fleet on NATS: w1 (started first, so it holds slots 0-7 once w2
-    joins), w2, and a front importing their printers.json; stopped after."""
+    joins), w2, and a front importing their printers.json; stopped after. With
+    ``database_url``, all three share that database (the workers keep the ledger)."""
     printers = [
         PrinterConfig(
             id=s.options.name, name=f"Printer {s.options.name[-1].upper()}", model="Virtual",
@@ -89,11 +91,12 @@ def two_workers_and_a_front(
         for s in stacks
     ]  # fmt: skip
     write_printers(folder / "printers.json", printers)
+    shared = ("--database-url", database_url) if database_url else ()
     front = KyberCoreServer(
         folder / "printers.json", free_port(), "--nats", broker.url, "--slots", str(SLOTS),
-        command="front",
+        *shared, command="front",
     )  # fmt: skip
-    cluster = Cluster(broker, folder, front)
+    cluster = Cluster(broker, folder, front, shared)
     try:
         w1 = cluster.worker("w1")
         wait("w1 owns every slot", lambda: len(w1.owned()) == SLOTS, SETTLE)
@@ -107,15 +110,22 @@ def two_workers_and_a_front(
 class Cluster:
     """A broker, workers and one front; :meth:`close` stops what is still running."""
 
-    def __init__(self, broker: LocalServer, folder: Path, front: KyberCoreServer) -> None:
+    def __init__(
+        self,
+        broker: LocalServer,
+        folder: Path,
+        front: KyberCoreServer,
+        worker_args: tuple[str, ...] = (),
+    ) -> None:
         self.broker = broker
         self.folder = folder
         self.front = front
         self.workers: dict[str, WorkerProcess] = {}
+        self._worker_args = worker_args
 
     def worker(self, name: str) -> WorkerProcess:
         """Start the worker ``name``."""
-        self.workers[name] = WorkerProcess(name, self.broker.url, self.folder)
+        self.workers[name] = WorkerProcess(name, self.broker.url, self.folder, *self._worker_args)
         return self.workers[name]
 
     def views(self) -> list[dict[str, Any]]:

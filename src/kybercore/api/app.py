@@ -124,6 +124,7 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         engine = await open_database(database_url or default_database_url(folder))
+        app.state.engine = engine
         app.state.audit = AuditLog(engine)
         try:
             async with new_http_client() as http:

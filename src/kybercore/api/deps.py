@@ -9,6 +9,7 @@ from typing import Annotated, Any, Final
 import orjson
 from fastapi import Depends
 from fastapi.responses import JSONResponse
+from sqlalchemy.ext.asyncio import AsyncEngine
 from starlette.requests import HTTPConnection
 
 from kybercore.api.auth import Identity
@@ -44,6 +45,17 @@ Queue = Annotated[QueueService, Depends(queue_service)]
 Operator = Annotated[Identity, OPERATOR]
 """A route parameter: the caller, who must hold the operator role (the queue records who
 did what)."""
+
+
+def database(connection: HTTPConnection) -> AsyncEngine:
+    """The app's database (the queue's and the ledger's; on NATS, the one every front and
+    worker shares), opened by the lifespan."""
+    engine: AsyncEngine = connection.app.state.engine
+    return engine
+
+
+Database = Annotated[AsyncEngine, Depends(database)]
+"""A route parameter that receives the app's database engine."""
 
 
 def started(connection: HTTPConnection, name: str, what: str) -> Any:

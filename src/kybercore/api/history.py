@@ -13,25 +13,14 @@ from typing import Annotated, Any, Final, Literal
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
-from starlette.requests import HTTPConnection
 
-from kybercore.api.deps import VIEWER, started
+from kybercore.api.deps import VIEWER, Database
 from kybercore.api.models import ERROR_RESPONSES
 from kybercore.ledger import records, stats
-from kybercore.ledger.service import LedgerService
 
 router = APIRouter()
 
 CSV_NAME: Final = "kybercore-history.csv"
-
-
-def ledger_service(connection: HTTPConnection) -> LedgerService:
-    """The app's LedgerService, started by the lifespan."""
-    service: LedgerService = started(connection, "ledger", "The job history and statistics")
-    return service
-
-
-Ledger = Annotated[LedgerService, Depends(ledger_service)]
 
 
 class HistoryRow(BaseModel):
@@ -112,14 +101,14 @@ class Filters:
     "/api/history", response_model=HistoryPage, responses=ERROR_RESPONSES, dependencies=[VIEWER]
 )
 async def history(
-    ledger: Ledger,
+    database: Database,
     filters: Annotated[Filters, Depends()],
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> dict[str, Any]:
     """Jobs every printer ran, newest first, filtered by printer, status, file, user and
     start time (``from`` inclusive, ``to`` exclusive)."""
-    total, items = await records.page(ledger.engine, filters.where, limit, offset)
+    total, items = await records.page(database, filters.where, limit, offset)
     return {"total": total, "items": items}
 
 
@@ -129,13 +118,15 @@ async def history(
     response_class=StreamingResponse,
     dependencies=[VIEWER],
 )
-async def history_csv(ledger: Ledger, filters: Annotated[Filters, Depends()]) -> StreamingResponse:
+async def history_csv(
+    database: Database, filters: Annotated[Filters, Depends()]
+) -> StreamingResponse:
     """Every matching job as CSV, one row per job, with a header row."""
 
     async def lines() -> AsyncIterator[str]:
         yield records.csv_text([], header=True)
         batch: list[dict[str, Any]] = []
-        async for row in records.every_row(ledger.engine, filters.where):
+        async for row in records.every_row(database, filters.where):
             batch.append(row)
             if len(batch) == records.CSV_BATCH:
                 yield records.csv_text(batch)
@@ -153,7 +144,7 @@ async def history_csv(ledger: Ledger, filters: Annotated[Filters, Depends()]) ->
     "/api/stats", response_model=StatsAnswer, responses=ERROR_RESPONSES, dependencies=[VIEWER]
 )
 async def statistics(
-    ledger: Ledger,
+    database: Database,
     group_by: Literal["printer", "file", "material", "day"] = "printer",
     start: Annotated[datetime | None, Query(alias="from")] = None,
     end: Annotated[datetime | None, Query(alias="to")] = None,
@@ -163,7 +154,7 @@ async def statistics(
     days). Utilisation is printing time over observed time less maintenance and disabled
     printers; null for files and materials."""
     begin, stop = stats.window(start, end)
-    rows = await stats.statistics(ledger.engine, group_by, begin, stop)
+    rows = await stats.statistics(database, group_by, begin, stop)
     return {
         "group_by": group_by,
         "from": records.iso(begin),

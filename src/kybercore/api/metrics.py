@@ -6,16 +6,28 @@ its formatting runs in a worker thread."""
 from __future__ import annotations
 
 import asyncio
+from typing import Annotated
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST
+from starlette.requests import HTTPConnection
 
-from kybercore.api.deps import VIEWER
-from kybercore.api.history import Ledger
+from kybercore.api.deps import VIEWER, started
 from kybercore.ledger.metrics import exposition
+from kybercore.ledger.service import LedgerService
 
 router = APIRouter()
+
+
+def ledger_service(connection: HTTPConnection) -> LedgerService:
+    """The app's LedgerService, started by the lifespan (not on a front: the live figures
+    are in the workers)."""
+    service: LedgerService = started(connection, "ledger", "The fleet's metrics")
+    return service
+
+
+Ledger = Annotated[LedgerService, Depends(ledger_service)]
 
 
 @router.get(

@@ -55,6 +55,16 @@ def ingest(
     folder: Annotated[
         Path | None, typer.Option("--dir", help="Where the worker writes its leases log.")
     ] = None,
+    database_url: Annotated[
+        str | None,
+        typer.Option(
+            "--database-url",
+            envvar="KYBERCORE_DATABASE_URL",
+            help="The fronts' database (PostgreSQL): the worker writes the job history and "
+            "state timeline of its printers there. Without it, no ledger is kept.",
+            show_default=False,
+        ),
+    ] = None,
     log_level: LogLevel = "info",
 ) -> None:
     """Run an ingest worker: own a share of the printers, hold their Moonraker sessions,
@@ -66,7 +76,7 @@ def ingest(
     _logging(log_level)
     try:
         where.mkdir(parents=True, exist_ok=True)
-        asyncio.run(_ingest(nats_url, name, slots, lease_ttl, grace, where))
+        asyncio.run(_ingest(nats_url, name, slots, lease_ttl, grace, where, database_url))
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     except OSError as exc:
@@ -77,19 +87,27 @@ def _unreachable(url: str, exc: OSError) -> typer.Exit:
     return fail(f"Cannot reach NATS at {url} ({exc}). Is nats-server -js running there?")
 
 
-async def _ingest(url: str, name: str, slots: int, ttl: float, grace: float, folder: Path) -> None:
+async def _ingest(
+    url: str, name: str, slots: int, ttl: float, grace: float, folder: Path, database: str | None
+) -> None:
+    from kybercore.db import open_database
     from kybercore.moonraker.http import new_http_client
     from kybercore.scale.broker import connect
     from kybercore.scale.worker import Worker
 
+    engine = await open_database(database) if database else None
     nc = await connect(url, f"kybercore-ingest-{name}")
     async with new_http_client() as http:
-        worker = Worker(nc, name, http, slots=slots, ttl=ttl, folder=folder, grace=grace)
+        worker = Worker(
+            nc, name, http, slots=slots, ttl=ttl, folder=folder, grace=grace, database=engine
+        )
         await worker.start()
         logging.getLogger(__name__).info("worker %s up on %s", name, url)
         await _until_signal()
         await worker.stop()
     await nc.close()
+    if engine is not None:
+        await engine.dispose()
 
 
 def front(

@@ -16,7 +16,7 @@ import contextlib
 import logging
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -82,7 +82,12 @@ class LedgerService:
         page: int = PAGE,
         tick: float = 1.0,
         queue_poll: float = 2.0,
+        owns: Callable[[str], bool] | None = None,
     ) -> None:
+        """``owns(printer_id)``: whether this ledger writes for the printer now (an ingest
+        worker on NATS: the printers of the slots it holds; the others' sessions may still
+        be open for a grace period). None: every printer of ``fleet``, and the intervals
+        a previous run left open are ended at start (one process writes them all)."""
         self.fleet = fleet
         self.engine = engine
         self.history = HistoryStore(engine)
@@ -105,12 +110,16 @@ class LedgerService:
         self._backfills = asyncio.Semaphore(BACKFILLS_AT_ONCE)
         self._tasks: list[asyncio.Task[None]] = []
         self._unlisten: Any = None
+        self._owns = owns
 
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:
         """Close what a previous run left open, load the counts, start listening."""
-        await self.timeline.recover()
+        if self._owns is None:
+            # With several writers, an open interval may be another's: the next change
+            # of its printer ends it, whoever writes it.
+            await self.timeline.recover()
         self.job_counts = await self.history.counts()
         self._unlisten = self.fleet.listen(self._on_event, _INTEREST)
         for work, name in (
@@ -121,7 +130,7 @@ class LedgerService:
         ):
             self._tasks.append(asyncio.create_task(work(), name=name))
         # Printers online before we listened: their (re)connect was not heard.
-        for printer in self.fleet.sessions.all():
+        for printer in self._mine():
             if printer.live.connection == "online":
                 self._connected(printer.config.id)
 
@@ -166,6 +175,8 @@ class LedgerService:
     # -- what the sessions tell ----------------------------------------------------------
 
     def _on_event(self, printer_id: str, event: SessionEvent) -> None:
+        if self._owns is not None and not self._owns(printer_id):
+            return  # another worker writes it (its sweep catches up when it comes back)
         if isinstance(event, Notification):
             if event.method == "notify_history_changed":
                 self._heard_jobs(printer_id, jobs_of_notification(event.params))
@@ -277,11 +288,21 @@ class LedgerService:
         state = printer_state(live.connection, live.klippy_state, print_state, self.gates.get(pid))
         self.timeline.observe(pid, state, at)
 
+    def _mine(self) -> list[FleetPrinter]:
+        printers = self.fleet.sessions.all()
+        if self._owns is None:
+            return printers
+        return [p for p in printers if self._owns(p.config.id)]
+
     def _sweep(self) -> None:
         now = time.time()
-        printers = self.fleet.sessions.all()
+        printers = self._mine()
         for printer in printers:
             self._observe(printer, now)
+            pid = printer.config.id
+            if pid not in self._feeds and printer.live.connection == "online":
+                # Online before it was ours (a worker took its slot over): catch up now.
+                self._connected(pid)
         present = {p.config.id for p in printers}
         self.timeline.forget([pid for pid in self.timeline.current if pid not in present], now)
         for pid in [pid for pid in self._feeds if pid not in present]:

@@ -69,6 +69,8 @@ class Timeline:
         self._engine = engine
         self._current: dict[str, State] = {}
         self._pending: list[Change] = []
+        self._opened: dict[str, float] = {}
+        """Printer -> start of the open interval this timeline wrote."""
         self._writing = asyncio.Lock()
 
     @property
@@ -100,27 +102,37 @@ class Timeline:
         if not changes:
             return 0
         # Backwards: each interval ends where the printer's next change starts; what is
-        # left in `start` is each printer's first change, which ends its open interval.
-        start: dict[str, float] = {}
+        # left in `first` is each printer's first change, which ends its open interval.
+        first: dict[str, Change] = {}
         rows = []
         for change in reversed(changes):
             if change.state is not None:
+                ends = first[change.printer].at if change.printer in first else None
                 rows.append(
                     {"printer": change.printer, "state": change.state,
-                     "started_at": change.at, "ended_at": start.get(change.printer)}
+                     "started_at": change.at, "ended_at": ends}
                 )  # fmt: skip
-            start[change.printer] = change.at
+            first[change.printer] = change
         rows.reverse()
-        ended = [{"p": printer, "at": at} for printer, at in start.items()]
+        # A new state ends whatever interval of the printer is open (a worker taking over
+        # from one that died ends the dead one's); leaving ends only the one this timeline
+        # opened (a paused former owner must not end its successor's).
+        taken = [{"p": c.printer, "at": c.at} for c in first.values() if c.state is not None]
+        left = [
+            {"p": c.printer, "at": c.at, "since": self._opened[c.printer]}
+            for c in first.values()
+            if c.state is None and c.printer in self._opened
+        ]
 
         async def work(conn: AsyncConnection) -> None:
             states = printer_states.c
-            await conn.execute(
-                update(printer_states)
-                .where(states.printer == bindparam("p"), states.ended_at.is_(None))
-                .values(ended_at=bindparam("at")),
-                ended,
-            )
+            open_interval = (states.printer == bindparam("p"), states.ended_at.is_(None))
+            ending = update(printer_states).values(ended_at=bindparam("at"))
+            if taken:
+                await conn.execute(ending.where(*open_interval), taken)
+            if left:
+                since = states.started_at == bindparam("since")
+                await conn.execute(ending.where(*open_interval, since), left)
             if rows:
                 await conn.execute(printer_states.insert(), rows)
 
@@ -135,6 +147,12 @@ class Timeline:
                 await asyncio.wait({write})
             if write.cancelled() or write.exception() is not None:
                 self._pending[:0] = changes  # written next time, in order
+            else:
+                for change in changes:
+                    if change.state is None:
+                        self._opened.pop(change.printer, None)
+                    else:
+                        self._opened[change.printer] = change.at
         return len(changes)
 
     async def recover(self) -> None:

@@ -31,9 +31,11 @@ import picows
 from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.aio.subscription import Subscription
+from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
 from kybercore.fleet.service import FleetService
+from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry
@@ -72,8 +74,11 @@ class Worker:
         folder: Path,
         grace: float = GRACE_SECONDS,
         connect: Connect = picows.ws_connect,
+        database: AsyncEngine | None = None,
     ) -> None:
-        """``folder`` keeps the worker's own/drop log (``leases.jsonl``)."""
+        """``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
+        (the one the fronts read), the worker keeps the ledger of the printers it acts
+        for: their job history and state timeline."""
         self._nc = nc
         self.worker_id = worker_id
         self.slots = slots
@@ -89,6 +94,11 @@ class Worker:
             on_change=lambda _slot, _epoch: self._wake.set(),
         )  # fmt: skip
         self.commands = CommandRunner(self.service, self._epoch_of)
+        self.ledger = None
+        if database is not None:
+            self.ledger = LedgerService(
+                self.service, database, owns=lambda pid: self._acting_for(self._slot(pid))
+            )
         self._printers: list[PrinterConfig] = []
         self._applied: tuple[int, frozenset[int]] | None = None
         """(registry version, slots) the sessions were last made to match."""
@@ -109,6 +119,8 @@ class Worker:
         await self.registry.open(self._nc)
         self.service.hub.start()
         await self.leases.start()
+        if self.ledger is not None:
+            await self.ledger.start()
         self._tasks = [
             asyncio.create_task(self.registry.watch(self._on_printers), name="registry-watch"),
             asyncio.create_task(self._run(), name="worker-loop"),
@@ -121,12 +133,17 @@ class Worker:
         for task in self._tasks:
             await cancel_and_wait(task)
         await self.commands.stop()
+        if self.ledger is not None:
+            await self.ledger.stop()
         await self.service.stop()
 
     # -- ownership -----------------------------------------------------------------------
 
+    def _slot(self, printer_id: str) -> int:
+        return slot_of(printer_id, self.slots)
+
     def _epoch_of(self, printer_id: str) -> int | None:
-        return self.leases.epoch(slot_of(printer_id, self.slots))
+        return self.leases.epoch(self._slot(printer_id))
 
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
         self._printers = printers
