@@ -54,10 +54,11 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
         "kybercore.ledger", "kybercore.notify",
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
-    # Scale-out on NATS: leases and (later) the ingest and front roles over the fleet.
+    # Scale-out on NATS: leases, and the ingest and front roles over the fleet. A worker
+    # is a process's composition root, as api/app.py is: it runs the ledger of its printers.
     "scale": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
-        "kybercore.moonraker", "kybercore.registry",
+        "kybercore.moonraker", "kybercore.registry", "kybercore.ledger",
     ),
     "cli": ("kybercore",),
 }  # fmt: skip
