@@ -52,6 +52,31 @@ def test_first_frame_is_a_snapshot_then_deltas() -> None:
     assert delta["seq"] == snapshot["seq"] + 1
 
 
+def test_patches_made_elsewhere_are_passed_on_without_rendering() -> None:
+    # A front forwards its workers' patches: the same frames as a render, no render.
+    fleet = Fleet()
+    hub = Hub(fleet.render)
+    client = hub.connect()
+    frames(client)
+    first = {"id": "a", "extruder": {"temperature": 20.0, "target": 0.0}}
+    hub.patched("a", first, first)
+    second = {"id": "a", "extruder": {"temperature": 21.0, "target": 0.0}}
+    hub.patched("a", second, {"extruder": {"temperature": 21.0}})
+    third = {"id": "a", "extruder": {"temperature": 21.0, "target": 60.0}}
+    hub.patched("a", third, {"extruder": {"target": 60.0}})
+    hub.flush()
+    [delta] = frames(client)
+    # A new printer's first patch is its view; later ones in the same tick merge into it.
+    assert delta["printers"] == {"a": third}
+    hub.patched("a", second, {"extruder": {"target": 0.0}})
+    hub.flush()
+    [delta] = frames(client)
+    assert delta["printers"] == {"a": {"extruder": {"target": 0.0}}}
+    assert hub.view("a") == second
+    assert json.loads(hub.fleet_json()) == [second]
+    assert fleet.renders == 0
+
+
 def test_many_updates_in_one_tick_become_one_frame() -> None:
     fleet = Fleet()
     hub = Hub(fleet.render)

@@ -11,19 +11,31 @@ def batch(epoch: int, seq: int, **patches: Any) -> dict[str, Any]:
     return {"epoch": epoch, "seq": seq, "patches": patches, "removed": [], "events": []}
 
 
-def copy() -> tuple[FleetCopy, list[str]]:
+Patch = tuple[str, dict[str, Any], dict[str, Any]]
+
+
+def copy(patched: list[Patch] | None = None) -> tuple[FleetCopy, list[str]]:
     changed: list[str] = []
-    return FleetCopy(4, changed.append, lambda _e: None), changed
+    passed = [] if patched is None else patched
+
+    def on_patch(printer_id: str, view: dict[str, Any], patch: dict[str, Any]) -> None:
+        passed.append((printer_id, view, patch))
+
+    return FleetCopy(4, changed.append, on_patch, lambda _e: None), changed
 
 
 def test_batches_wait_for_a_snapshot_then_apply_in_order() -> None:
-    fleet, _ = copy()
+    patched: list[Patch] = []
+    fleet, changed = copy(patched)
     assert fleet.batch(1, batch(7, 5, p={"x": 5}), now=0.0)  # new epoch: snapshot please
     assert not fleet.batch(1, batch(7, 6, p={"x": 6}), now=0.1)
     assert not fleet.snapshot(1, {"epoch": 7, "seq": 5, "views": {"p": {"x": 5, "y": 1}}}, 0.2)
     assert fleet.views["p"] == {"x": 6, "y": 1}  # seq 5 was in the snapshot, 6 applied after
     assert not fleet.batch(1, batch(7, 7, p={"y": 2}), now=0.3)
     assert fleet.views["p"] == {"x": 6, "y": 2}
+    # The snapshot is rendered again; each patch after it is passed on as the worker sent it.
+    assert changed == ["p"]
+    assert patched == [("p", {"x": 6, "y": 1}, {"x": 6}), ("p", {"x": 6, "y": 2}, {"y": 2})]
 
 
 def test_a_gap_asks_for_a_snapshot_and_an_older_epoch_is_ignored() -> None:

@@ -96,6 +96,20 @@ class Hub:
         """Note that a printer's view may have changed; sent with the next tick."""
         self._dirty[printer_id] = None
 
+    def patched(self, printer_id: str, view: View, patch: dict[str, Any]) -> None:
+        """Take a printer's new view with the patch that led to it from its last one, both
+        made elsewhere (a front forwards its workers' patches): no render, no diff. Sent
+        with the next tick, as a marked printer's would be."""
+        old = self._views.get(printer_id)
+        self._fleet = self._snapshot_frame = self._slim_fleet = None
+        self._views[printer_id] = view
+        if old is None:
+            self._removed.discard(printer_id)
+            self._unsent[printer_id] = view
+            return
+        unsent = self._unsent.get(printer_id)
+        self._unsent[printer_id] = patch if unsent is None else merge_status(unsent, patch)
+
     def event(self, frame: dict[str, Any]) -> None:
         """Queue an event frame (connection, Klippy, action result) for every client."""
         self._events.append(frame)

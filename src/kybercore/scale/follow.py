@@ -38,16 +38,27 @@ class SlotCopy:
 
 
 Changed = Callable[[str], None]
-"""Told the id of every printer whose view changed."""
+"""Told the id of every printer whose view changed (to render it again)."""
+Patched = Callable[[str, View, dict[str, Any]], None]
+"""Told a printer's new view and the patch that made it from the last one (to pass on)."""
 
 
 class FleetCopy:
     """Every printer's last view as its owner published it, by slot."""
 
-    def __init__(self, slots: int, changed: Changed, event: Callable[[dict[str, Any]], None]):
+    def __init__(
+        self,
+        slots: int,
+        changed: Changed,
+        patched: Patched,
+        event: Callable[[dict[str, Any]], None],
+    ) -> None:
+        """A snapshot's views and a slot's staleness reach ``changed``; a batch's patches
+        reach ``patched`` as they are."""
         self.slots = [SlotCopy() for _ in range(slots)]
         self.views: dict[str, View] = {}
         self._changed = changed
+        self._patched = patched
         self._event = event
         self.members: dict[int, set[str]] = {}
         """Printers last seen in each slot (to mark them when the slot goes stale)."""
@@ -100,9 +111,9 @@ class FleetCopy:
         members = self.members.setdefault(slot, set())
         for printer_id, patch in body["patches"].items():
             old = self.views.get(printer_id)
-            self.views[printer_id] = patch if old is None else merge_status(old, patch)
+            view = self.views[printer_id] = patch if old is None else merge_status(old, patch)
             members.add(printer_id)
-            self._changed(printer_id)
+            self._patched(printer_id, view, patch)
         for printer_id in body["removed"]:
             self.views.pop(printer_id, None)
             members.discard(printer_id)

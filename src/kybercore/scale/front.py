@@ -72,7 +72,7 @@ class FrontFleet(FleetService):
         self._printers_file = printers_file
         self.kv = KvRegistry()
         self._configs: dict[str, PrinterConfig] = {}
-        self.copy = FleetCopy(slots, self.hub.mark, self.hub.event)
+        self.copy = FleetCopy(slots, self.hub.mark, self._patched, self.hub.event)
         self._asking: set[int] = set()
         self._tasks: list[asyncio.Task[Any]] = []
 
@@ -145,6 +145,15 @@ class FrontFleet(FleetService):
         if "views" in body and self.copy.snapshot(slot, body, time.monotonic()):
             self._asking.discard(slot)
             self._ask_snapshot(slot)
+
+    def _patched(self, printer_id: str, view: View, patch: dict[str, Any]) -> None:
+        # The worker's patch goes on to the browsers as it is (no render, no diff), unless
+        # the front shows the printer otherwise: not in its registry yet, or stale.
+        slot = slot_of(printer_id, self._slots)
+        if printer_id in self._configs and not self.copy.is_stale(slot):
+            self.hub.patched(printer_id, view, patch)
+        else:
+            self.hub.mark(printer_id)
 
     def _render(self, printer_id: str) -> View | None:
         config = self._configs.get(printer_id)
