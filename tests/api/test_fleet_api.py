@@ -111,6 +111,12 @@ async def test_start_pause_resume_cancel_through_rest(
         view = (await api.get("/api/printers/fleet-b")).json()
         assert view["job"]["state"] == expected
 
+        def told() -> bool:
+            return action in [e["action"] for e in mirror.events("action", "fleet-b")]
+
+        # The action's own event may come a tick after the state it led to.
+        await mirror.wait(told, what=f"the {action} event")
+
     await act("start", "printing", filename=name)
     view = (await api.get("/api/printers/fleet-b")).json()
     assert view["job"]["filename"] == name

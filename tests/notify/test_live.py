@@ -231,8 +231,17 @@ async def test_a_finished_print_is_told_started_and_completed_with_the_webcams_p
             assert told["snapshot"]["filename"] == f"{own_printer.options.name}.jpg"
             with Image.open(io.BytesIO(base64.b64decode(told["snapshot"]["base64"]))) as shot:
                 assert (shot.format, shot.size) == ("JPEG", (640, 480))
-        log = (await api.get("/api/notifications/deliveries")).json()
-        assert [(d["kind"], d["status"]) for d in log] == [
+
+        async def logged() -> list[tuple[str, str]]:
+            log = (await api.get("/api/notifications/deliveries")).json()
+            return [(d["kind"], d["status"]) for d in log]
+
+        # The receiver has it before the outbox has written down the receiver's answer.
+        async def both_delivered() -> bool:
+            return all(status == "delivered" for _, status in await logged())
+
+        await wait_for(both_delivered, TOLD_WITHIN, "both deliveries recorded")
+        assert await logged() == [
             ("print_completed", "delivered"),
             ("print_started", "delivered"),
         ]

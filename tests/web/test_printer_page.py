@@ -28,6 +28,18 @@ def position(api: httpx.Client, printer_id: str) -> list[float]:
     return list(toolhead["position"] or [])
 
 
+def settled_x(api: httpx.Client, printer_id: str) -> float:
+    """X once the moves queued so far are done (M400) and the view shows where Klipper
+    says the toolhead is (M114): homing may still be moving it when "Homed" shows."""
+    answer = api.post(f"/api/printers/{printer_id}/gcode", json={"script": "M400\nM114"})
+    assert answer.status_code == 200, answer.text
+    found = re.search(r"X:(-?[0-9.]+)", " ".join(answer.json()["response"]))
+    assert found, answer.text
+    x = float(found.group(1))
+    wait_until(lambda: abs(position(api, printer_id)[0] - x) < 0.01, what=f"the view at X {x}")
+    return x
+
+
 def open_page(page: Page, url: str, printer_id: str, name: str) -> Locator:
     """Open the printer's page from its tile; returns the page's section."""
     open_fleet(page, url)
@@ -73,10 +85,14 @@ def test_home_jog_target_and_a_macro_reach_klipper(
     # G28 homes X, then Y, then Z: X's jog comes alive before the others are homed.
     expect(section.locator(".pp-homed")).to_have_text("Homed: X Y Z", timeout=60_000)
     expect(jog).to_be_enabled()
-    start_x = position(api, "fleet-a")[0]
+    start_x = settled_x(api, "fleet-a")
     section.get_by_role("radiogroup", name="Step (mm)").get_by_text("10", exact=True).click()
     jog.click()
-    wait_until(lambda: abs(position(api, "fleet-a")[0] - (start_x + 10)) < 0.01, what="X +10")
+    wait_until(
+        lambda: abs(position(api, "fleet-a")[0] - (start_x + 10)) < 0.01,
+        timeout=60,
+        what=f"X {start_x:.2f} + 10",
+    )
     expect(section.locator(".pp-position")).to_contain_text(f"X {start_x + 10:.2f}")
 
     target = section.get_by_role("spinbutton", name="New target for Hotend, °C")
