@@ -202,7 +202,7 @@ class LaunchError(KyberCoreError):
 
 def not_on_front(what: str) -> ActionRejected:
     """The refusal of a KyberCore front (on NATS) for what it does not do yet: ``what``
-    starts the sentence ("Uploading a file", "The job queue")."""
+    starts the sentence ("The job queue", "Notifications")."""
     return ActionRejected(
         f"{what} is not available on a KyberCore front yet (the distributed mode): use "
         "`kybercore serve`, or the printer's own Mainsail or Fluidd, for this.",
