@@ -7,7 +7,9 @@
     │   ├── PrinterUnreachable        network or Moonraker down: retry later
     │   │   ├── PrinterTimeout        it did not answer in time: retry later
     │   │   │   └── OutcomeUnknown    sent, no answer: check the printer before retrying
-    │   │   └── OwnerMoving           its process is changing (NATS): retry in seconds
+    │   │   ├── OwnerMoving           its process is changing (NATS): retry in seconds
+    │   │   └── TransferFailed        a file did not cross NATS: nothing reached it, resend
+    │   │       └── UploadCorrupted   the copy that crossed is not the file sent: resend
     │   ├── PrinterAuthFailed         Moonraker refused the API key: fix credentials
     │   ├── KlippyNotReady            Moonraker is up, Klippy is not: wait
     │   └── MoonrakerRpcError         Moonraker refused this one call
@@ -84,6 +86,20 @@ class OutcomeUnknown(PrinterTimeout):
     Never retried on its own; look at the printer before sending it again."""
 
     code = "outcome_unknown"
+
+
+class TransferFailed(PrinterUnreachable):
+    """A file could not be carried between KyberCore's processes on NATS (the broker away,
+    the copy gone): nothing reached the printer; send it again."""
+
+    code = "transfer_failed"
+
+
+class UploadCorrupted(TransferFailed):
+    """The copy of an uploaded file that reached the printer's KyberCore worker is not the
+    file that was sent (its size or sha256 differ): nothing was uploaded or started."""
+
+    code = "upload_corrupted"
 
 
 class PrinterAuthFailed(PrinterError):
@@ -186,7 +202,7 @@ class LaunchError(KyberCoreError):
 
 def not_on_front(what: str) -> ActionRejected:
     """The refusal of a KyberCore front (on NATS) for what it does not do yet: ``what``
-    starts the sentence ("Uploading a file", "The job queue")."""
+    starts the sentence ("The job queue", "Notifications")."""
     return ActionRejected(
         f"{what} is not available on a KyberCore front yet (the distributed mode): use "
         "`kybercore serve`, or the printer's own Mainsail or Fluidd, for this.",

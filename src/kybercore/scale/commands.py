@@ -24,7 +24,7 @@ import time
 import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from nats.aio.client import Client
 from nats.aio.msg import Msg
@@ -42,6 +42,9 @@ from kybercore.scale.wire import (
     loads,
 )
 
+if TYPE_CHECKING:
+    from kybercore.scale.uploads import Uploads
+
 log = logging.getLogger(__name__)
 
 ACK_SECONDS: Final = 5.0
@@ -50,6 +53,7 @@ means the owner is paused or cut off)."""
 ANSWER_SECONDS: Final = 660.0
 """How long a taken command may run: a G-code that heats waits up to Moonraker's limit."""
 REMEMBERED_IDS: Final = 4096
+CHECK_PRINTER: Final = "Check the printer (its console and state) before sending it again."
 
 
 def _moving(printer_id: str) -> OwnerMoving:
@@ -60,10 +64,9 @@ def _moving(printer_id: str) -> OwnerMoving:
     )
 
 
-def _unknown(printer_id: str, what: str) -> OutcomeUnknown:
+def _unknown(printer_id: str, what: str, check: str) -> OutcomeUnknown:
     return OutcomeUnknown(
-        f"the printer's KyberCore worker {what}, so whether the command ran is unknown. "
-        "Check the printer (its console and state) before sending it again.",
+        f"the printer's KyberCore worker {what}, so whether the command ran is unknown. {check}",
         printer=printer_id,
     )
 
@@ -76,9 +79,11 @@ async def send_command(
     *,
     epoch: int = 0,
     answer_timeout: float = ANSWER_SECONDS,
+    check: str = CHECK_PRINTER,
 ) -> Any:
     """Run ``op`` on the printer's owner; its result, or the error it raised (OwnerMoving
-    when nobody holds the printer, OutcomeUnknown when the owner went silent)."""
+    when nobody holds the printer, OutcomeUnknown when the owner went silent: ``check``
+    says what to look at before sending it again)."""
     inbox = nc.new_inbox()
     sub = await nc.subscribe(inbox, max_msgs=2)
     try:
@@ -91,7 +96,8 @@ async def send_command(
         try:
             ack = await sub.next_msg(timeout=ACK_SECONDS)
         except TimeoutError:
-            raise _unknown(printer_id, f"did not take it within {ACK_SECONDS:.0f} s") from None
+            took = f"did not take it within {ACK_SECONDS:.0f} s"
+            raise _unknown(printer_id, took, check) from None
         if ack.headers and ack.headers.get("Status") == "503":
             raise _moving(printer_id)
         body = loads(ack.data)
@@ -101,7 +107,7 @@ async def send_command(
             answer = await sub.next_msg(timeout=answer_timeout)
         except TimeoutError:
             waited = f"took it but did not answer in {answer_timeout:.0f} s"
-            raise _unknown(printer_id, waited) from None
+            raise _unknown(printer_id, waited, check) from None
         return _result(loads(answer.data))
     finally:
         await sub.unsubscribe()
@@ -116,10 +122,18 @@ def _result(body: dict[str, Any]) -> Any:
 class CommandRunner:
     """A worker's side: takes commands for the printers it owns and runs them."""
 
-    def __init__(self, service: FleetService, epoch_of: Callable[[str], int | None]) -> None:
+    def __init__(
+        self,
+        service: FleetService,
+        epoch_of: Callable[[str], int | None],
+        *,
+        uploads: Uploads | None = None,
+    ) -> None:
         """``epoch_of(printer_id)``: the printer's slot epoch while this worker may act for
-        it (the lease is fresh), else None."""
+        it (the lease is fresh), else None. ``uploads``: where uploaded files wait (without
+        it, the ``upload`` command is unknown here)."""
         self._service = service
+        self._uploads = uploads
         self._epoch_of = epoch_of
         self._seen: OrderedDict[str, None] = OrderedDict()
         self._running: set[asyncio.Task[None]] = set()
@@ -173,6 +187,8 @@ class CommandRunner:
                 force=bool(args.get("force")), confirm=bool(args.get("confirm")),
             )  # fmt: skip
             return encode_outcome(outcome)
+        if op == "upload" and self._uploads is not None:
+            return encode_outcome(await self._uploads.receive(service, printer_id, args))
         if op == "dry_run":
             verdict = await service.dry_run(
                 printer_id, args["action"], args.get("params"), bool(args.get("force"))

@@ -8,10 +8,12 @@ printers held by workers:
 - the configuration comes from the ``kc_registry`` bucket (:mod:`.registry`); adding,
   editing and removing a printer write there, and the workers follow;
 - actions, dry runs, file lists and the console history go to the printer's owner as
-  commands (:mod:`.commands`): the owner validates against live state and answers.
+  commands (:mod:`.commands`): the owner validates against live state and answers;
+- an uploaded file crosses in the ``kc_uploads`` object store, in chunks, and one command
+  has the owner upload (and start) it (:mod:`.uploads`).
 
-What a front does not do yet: uploads, thumbnails, macros, webcams and the temperature
-graph (they need the printer's Moonraker directly); each says so, with what to do.
+What a front does not do yet: thumbnails, macros, webcams and the temperature graph (they
+need the printer's Moonraker directly); each says so, with what to do.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from kybercore.scale.commands import send_command
 from kybercore.scale.follow import STALE_SECONDS, FleetCopy
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
+from kybercore.scale.uploads import send_upload
 from kybercore.scale.wire import decode_outcome, decode_verdict, loads, patch_subject
 from kybercore.scale.wire import snapshot_subject as snap_subject
 
@@ -265,9 +268,18 @@ class FrontFleet(FleetService):
         start: bool = False,
         confirm: bool = False,
     ) -> ActionOutcome:
-        """Not on a front yet."""
+        """Stream the file through the ``kc_uploads`` object store to the printer's owner,
+        which uploads it (and starts it) as ``kybercore serve`` does; its real outcome."""
         self.config(printer_id)
-        raise not_on_front("Uploading a file")
+        slot = slot_of(printer_id, self._slots)
+        body = await send_upload(
+            self._nc, printer_id, filename, content, start=start, confirm=confirm,
+            epoch=lambda: self.copy.slots[slot].epoch,
+        )  # fmt: skip
+        outcome = decode_outcome(body)
+        if outcome.error is not None:
+            raise outcome.error
+        return outcome
 
     async def files(self, printer_id: str) -> list[dict[str, Any]]:
         """The printer's G-code files, newest first (from its owner)."""

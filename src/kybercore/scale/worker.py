@@ -43,6 +43,7 @@ from kybercore.scale.commands import CommandRunner
 from kybercore.scale.leases import Leases
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
+from kybercore.scale.uploads import Uploads
 from kybercore.scale.wire import (
     command_subject,
     console_subject,
@@ -93,7 +94,7 @@ class Worker:
             nc, worker_id, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
             on_change=lambda _slot, _epoch: self._wake.set(),
         )  # fmt: skip
-        self.commands = CommandRunner(self.service, self._epoch_of)
+        self.commands = CommandRunner(self.service, self._epoch_of, uploads=Uploads(nc))
         self.ledger = None
         if database is not None:
             self.ledger = LedgerService(
