@@ -75,6 +75,21 @@ async def test_two_workers_split_evenly_and_a_third_rebalances(
     no_overlap(sorted(tmp_path.glob("w*.log")))
 
 
+async def test_workers_started_together_take_their_shares_at_once(
+    workers: Start, tmp_path: Path
+) -> None:
+    # Each announces itself and waits a round before claiming: neither takes every slot
+    # (and every printer's connection) only to hand half back.
+    w1 = await workers("w1")
+    w2 = await workers("w2")  # a few milliseconds later, well within w1's first round
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    for w in (w1, w2):
+        await w.flush_log()
+    logs = [line for path in tmp_path.glob("w*.log") for line in path.read_text().splitlines()]
+    assert len(logs) == SLOTS
+    assert all('"own"' in line for line in logs)
+
+
 async def test_a_dead_workers_slots_are_taken_over(workers: Start, tmp_path: Path) -> None:
     w1, w2 = await workers("w1"), await workers("w2")
     await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)

@@ -56,8 +56,10 @@ class Held:
     """monotonic() when the last successful renewal was sent."""
 
 
-Change = Callable[[int, int | None], None]
-"""Told ``(slot, epoch)`` when a slot is gained, ``(slot, None)`` when it is lost."""
+Change = Callable[[int, int | None, str], None]
+"""Told ``(slot, epoch, "")`` when a slot is gained, ``(slot, None, why)`` when it is lost:
+``why`` is ``lost`` (another worker has it), ``fence``, ``release`` (handed to a peer for
+a fair share) or ``stop``."""
 
 
 class Leases:
@@ -116,6 +118,13 @@ class Leases:
         return {s: e for s in list(self._held) if (e := self.epoch(s)) is not None}
 
     async def _loop(self) -> None:
+        # Announce this worker and wait one round before claiming: workers started together
+        # then see each other and take their shares at once, rather than the first taking
+        # every slot (and every printer's connection) only to hand half of them back.
+        with contextlib.suppress(Exception):  # the broker away: the rounds say so
+            assert self._workers is not None
+            await self._workers.put(self.worker, b"1")
+            await asyncio.sleep(self.ttl / 3)
         while True:
             started = time.monotonic()
             try:
@@ -163,7 +172,7 @@ class Leases:
             self._held[slot] = Held(revision, revision, sent)
             self._write("own", slot, revision)
             if self._on_change:
-                self._on_change(slot, revision)
+                self._on_change(slot, revision, "")
 
     def _value(self, epoch: int) -> bytes:
         return json.dumps({"w": self.worker, "epoch": epoch}).encode()
@@ -175,7 +184,7 @@ class Leases:
         log.info("%s: slot %d dropped (%s)", self.worker, slot, why)
         self._write("drop", slot, held.epoch, why=why, at=at)
         if self._on_change:
-            self._on_change(slot, None)
+            self._on_change(slot, None, why)
 
     def _write(
         self, event: str, slot: int, epoch: int, why: str = "", at: float | None = None

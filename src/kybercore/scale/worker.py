@@ -92,7 +92,7 @@ class Worker:
         )
         self.leases = Leases(
             nc, worker_id, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
-            on_change=lambda _slot, _epoch: self._wake.set(),
+            on_change=self._lease_changed,
         )  # fmt: skip
         self.commands = CommandRunner(self.service, self._epoch_of, uploads=Uploads(nc))
         self.ledger = None
@@ -107,6 +107,8 @@ class Worker:
         self._owned: dict[int, int] = {}
         self._kept: dict[int, float] = {}
         """Lost slots whose sessions stay open, until this monotonic() time."""
+        self._handed: set[int] = set()
+        """Slots released to a peer (a fair share): their sessions close at once."""
         self._seq: dict[int, int] = defaultdict(int)
         self._sent_at: dict[int, float] = {}
         self._snap_subs: dict[int, Subscription] = {}
@@ -146,6 +148,11 @@ class Worker:
     def _epoch_of(self, printer_id: str) -> int | None:
         return self.leases.epoch(self._slot(printer_id))
 
+    def _lease_changed(self, slot: int, epoch: int | None, why: str) -> None:
+        if why == "release":
+            self._handed.add(slot)
+        self._wake.set()
+
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
         self._printers = printers
         self._version += 1
@@ -166,9 +173,13 @@ class Worker:
         owned = self.leases.owned()  # fences what is too old
         now = time.monotonic()
         for slot in set(self._owned) - set(owned):
-            self._kept[slot] = now + self._grace
+            # Kept open in case it comes back (a broker blip), unless it went to a peer that
+            # connects its printers anyway: two sessions per printer would double the work.
+            if slot not in self._handed:
+                self._kept[slot] = now + self._grace
             if (sub := self._snap_subs.pop(slot, None)) is not None:
                 await sub.unsubscribe()
+        self._handed.clear()
         for slot in set(owned) - set(self._owned):
             self._kept.pop(slot, None)
             self._snap_subs[slot] = await self._nc.subscribe(
