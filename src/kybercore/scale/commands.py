@@ -31,6 +31,7 @@ from nats.aio.msg import Msg
 
 from kybercore.errors import KyberCoreError, OutcomeUnknown, OwnerMoving
 from kybercore.fleet.service import FleetService
+from kybercore.scale.ops import OPS
 from kybercore.scale.wire import (
     EPOCH_HEADER,
     command_subject,
@@ -38,7 +39,6 @@ from kybercore.scale.wire import (
     dumps,
     encode_error,
     encode_outcome,
-    encode_verdict,
     loads,
 )
 
@@ -180,27 +180,10 @@ class CommandRunner:
         await msg.respond(dumps(body))
 
     async def _call(self, printer_id: str, op: str, args: dict[str, Any]) -> Any:
-        service = self._service
-        if op == "act":
-            outcome = await service.act(
-                printer_id, args["action"], args.get("params"),
-                force=bool(args.get("force")), confirm=bool(args.get("confirm")),
-            )  # fmt: skip
-            return encode_outcome(outcome)
         if op == "upload" and self._uploads is not None:
-            return encode_outcome(await self._uploads.receive(service, printer_id, args))
-        if op == "dry_run":
-            verdict = await service.dry_run(
-                printer_id, args["action"], args.get("params"), bool(args.get("force"))
-            )
-            return encode_verdict(verdict)
-        if op == "files":
-            return await service.files(printer_id)
-        if op == "file_metadata":
-            return await service.file_metadata(printer_id, args["filename"])
-        if op == "delete_file":
-            await service.delete_file(printer_id, args["path"])
-            return None
-        if op == "console_history":
-            return await service.console_history(printer_id, int(args["count"]))
-        raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")
+            # Not in OPS: it needs the worker's object store as well as its FleetService.
+            return encode_outcome(await self._uploads.receive(self._service, printer_id, args))
+        run = OPS.get(op)
+        if run is None:
+            raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")
+        return await run(self._service, printer_id, args)
