@@ -1,5 +1,6 @@
-"""A worker's side of a command, without a broker: the op runs on the FleetService and
-answers plain data, or a clear error."""
+"""A worker's side of a command, without a broker: the op runs on the FleetService, and an
+answer too large for one NATS message is answered with a clear error instead (else the front
+would wait for it in vain)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from typing import Any
 
 from nats.errors import MaxPayloadError
 
-from kybercore.errors import KyberCoreError
+from kybercore.api.errors import error_status
+from kybercore.errors import ActionRejected, KyberCoreError
 from kybercore.fleet.images import Image
 from kybercore.scale.commands import CommandRunner
 from kybercore.scale.wire import MAX_IMAGE, decode_error, decode_image, dumps, loads
@@ -63,6 +65,14 @@ async def test_ops_run_on_the_service_and_answer_plain_data() -> None:
     answer = await run(FakeService(image=MAX_IMAGE), "thumbnail", path=".thumbs/a.png")
     image = decode_image(answer["ok"])
     assert (len(image.content), image.media_type) == (MAX_IMAGE, "image/png")
+
+
+async def test_an_answer_too_large_for_nats_is_a_clear_error() -> None:
+    answer = await run(FakeService(files=30_000), "files")
+    error = decode_error(answer["error"])
+    assert isinstance(error, ActionRejected)
+    assert error_status(error) == (409, "too_large_for_front")
+    assert "the command 'files' ran on the printer's worker" in error.message
 
 
 async def test_an_image_too_large_is_refused_by_name() -> None:

@@ -28,8 +28,9 @@ from typing import TYPE_CHECKING, Any, Final
 
 from nats.aio.client import Client
 from nats.aio.msg import Msg
+from nats.errors import MaxPayloadError
 
-from kybercore.errors import KyberCoreError, OutcomeUnknown, OwnerMoving
+from kybercore.errors import ActionRejected, KyberCoreError, OutcomeUnknown, OwnerMoving
 from kybercore.fleet.service import FleetService
 from kybercore.scale.ops import OPS
 from kybercore.scale.wire import (
@@ -68,6 +69,16 @@ def _unknown(printer_id: str, what: str, check: str) -> OutcomeUnknown:
     return OutcomeUnknown(
         f"the printer's KyberCore worker {what}, so whether the command ran is unknown. {check}",
         printer=printer_id,
+    )
+
+
+def _too_large(printer_id: str, op: str, size: int) -> ActionRejected:
+    return ActionRejected(
+        f"{printer_id}: the command '{op}' ran on the printer's worker, but its answer is "
+        f"{size / 1024:.0f} kB, more than one NATS message may carry (the server's "
+        "max_payload), so a KyberCore front cannot relay it. Use `kybercore serve`, or the "
+        "printer's own Mainsail or Fluidd, for this.",
+        code="too_large_for_front",
     )
 
 
@@ -177,7 +188,13 @@ class CommandRunner:
             log.exception("%s: command %s failed", printer_id, request["op"])
             error = KyberCoreError(f"{printer_id}: the command failed inside KyberCore ({exc}).")
             body = {"error": encode_error(error)}
-        await msg.respond(dumps(body))
+        data = dumps(body)
+        try:
+            await msg.respond(data)
+        except MaxPayloadError:
+            # Said in an answer that fits: else the front would wait for the outcome in vain.
+            too_large = _too_large(printer_id, request["op"], len(data))
+            await msg.respond(dumps({"error": encode_error(too_large)}))
 
     async def _call(self, printer_id: str, op: str, args: dict[str, Any]) -> Any:
         if op == "upload" and self._uploads is not None:
