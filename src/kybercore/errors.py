@@ -30,7 +30,7 @@ lives in :mod:`kybercore.api.errors` and nowhere else.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import ClassVar, Literal
+from typing import ClassVar, Final, Literal
 
 
 class KyberCoreError(Exception):
@@ -200,12 +200,15 @@ class LaunchError(KyberCoreError):
     code = "launch_error"
 
 
-def not_on_front(what: str) -> ActionRejected:
+_USE_SERVE: Final = "use `kybercore serve`, or the printer's own Mainsail or Fluidd, for this"
+
+
+def not_on_front(what: str, instead: str = _USE_SERVE) -> ActionRejected:
     """The refusal of a KyberCore front (on NATS) for what it does not do yet: ``what``
-    starts the sentence ("The job queue", "Notifications")."""
+    starts the sentence ("The job queue", "Notifications"), ``instead`` ends it with what to
+    use ("use ...")."""
     return ActionRejected(
-        f"{what} is not available on a KyberCore front yet (the distributed mode): use "
-        "`kybercore serve`, or the printer's own Mainsail or Fluidd, for this.",
+        f"{what} is not available on a KyberCore front yet (the distributed mode): {instead}.",
         code="not_on_front",
     )
 

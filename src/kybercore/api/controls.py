@@ -12,7 +12,6 @@ from pydantic import BaseModel, Field
 
 from kybercore.api.deps import VIEWER, Service
 from kybercore.api.models import ERROR_RESPONSES
-from kybercore.core.macros import macros_of
 
 router = APIRouter(prefix="/api/printers")
 
@@ -40,9 +39,8 @@ class WebUiOut(BaseModel):
 async def macros(service: Service, printer_id: str) -> list[MacroOut]:
     """The printer's G-code macros, by name, without the ``_helpers``; read from Klipper's
     configuration each time (it changes with a firmware restart)."""
-    status = await service.client(printer_id).objects_query({"configfile": ["config"]})
-    config = status.get("configfile", {}).get("config", {})
-    return [MacroOut(name=m.name, description=m.description) for m in macros_of(config)]
+    found = await service.macros(printer_id)
+    return [MacroOut(name=m.name, description=m.description) for m in found]
 
 
 @router.get(

@@ -7,7 +7,6 @@ is relative to the printer's ``gcodes/`` root and must stay there.
 
 from __future__ import annotations
 
-import mimetypes
 from typing import Annotated, Any, Final
 
 from fastapi import APIRouter, File, Form, Request, UploadFile
@@ -76,10 +75,10 @@ async def thumbnail(service: Service, printer_id: str, path: FilePath) -> Respon
     path = safe_path(path)
     if not path.lower().endswith((".png", ".jpg", ".jpeg")):
         raise InvalidInput("Only .png and .jpg thumbnails can be fetched.")
-    content = await service.client(printer_id).download(path)
-    media = mimetypes.guess_type(path)[0] or "application/octet-stream"
+    image = await service.thumbnail(printer_id, path)
     # private: it may be behind a token, so no shared cache (a proxy) may keep it.
-    return Response(content, media_type=media, headers={"Cache-Control": "private, max-age=300"})
+    headers = {"Cache-Control": "private, max-age=300"}
+    return Response(image.content, media_type=image.media_type, headers=headers)
 
 
 @router.post(

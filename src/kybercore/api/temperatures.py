@@ -1,6 +1,7 @@
 """``GET /api/printers/{printer_id}/temperatures``: a printer's heaters over the last
 minutes, for the graph on its detail view, from the in-memory ring
-(:mod:`kybercore.fleet.temperatures`): no request reaches the printer.
+(:mod:`kybercore.fleet.temperatures`) of the process holding the printer's session (a front
+asks the printer's worker): no request reaches the printer.
 """
 
 from __future__ import annotations
@@ -49,6 +50,5 @@ async def temperatures(
     ] = 30,
 ) -> dict[str, Any]:
     """The printer's heater temperatures and targets over the last ``minutes``."""
-    service.config(printer_id)  # an unknown printer is a 404, not an empty graph
-    series = service.sessions.temperatures.series(printer_id, minutes)
+    series = await service.temperatures(printer_id, minutes)  # an unknown printer: a 404
     return {"printer": printer_id, "series": series}

@@ -13,7 +13,6 @@ from pydantic import BaseModel, Field
 
 from kybercore.api.deps import VIEWER, Service
 from kybercore.api.models import ERROR_RESPONSES
-from kybercore.fleet.webcams import Webcam
 
 router = APIRouter(prefix="/api/printers")
 
@@ -34,11 +33,6 @@ class WebcamOut(BaseModel):
     aspect_ratio: str = Field(description='As Moonraker has it, e.g. "4:3".')
 
 
-async def _camera(service: Service, printer_id: str, name: str) -> Webcam:
-    url = str(service.config(printer_id).moonraker_url)
-    return await service.webcams.camera(service.client(printer_id), url, printer_id, name)
-
-
 @router.get(
     "/{printer_id}/webcams",
     response_model=list[WebcamOut],
@@ -47,7 +41,6 @@ async def _camera(service: Service, printer_id: str, name: str) -> Webcam:
 )
 async def webcams(service: Service, printer_id: str) -> list[WebcamOut]:
     """The printer's enabled webcams, from Moonraker's ``/server/webcams/list``."""
-    url = str(service.config(printer_id).moonraker_url)
     base = f"/api/printers/{printer_id}/webcams"
     return [
         WebcamOut(
@@ -59,7 +52,7 @@ async def webcams(service: Service, printer_id: str) -> list[WebcamOut]:
             rotation=cam.rotation,
             aspect_ratio=cam.aspect_ratio,
         )
-        for cam in await service.webcams.cameras(service.client(printer_id), url)
+        for cam in await service.cameras(printer_id)
     ]
 
 
@@ -71,9 +64,8 @@ async def webcams(service: Service, printer_id: str) -> list[WebcamOut]:
 )
 async def snapshot(service: Service, printer_id: str, name: CameraName) -> Response:
     """One JPEG from the webcam."""
-    cam = await _camera(service, printer_id, name)
-    image = await service.webcams.snapshot(cam, printer_id)
-    return Response(image, media_type="image/jpeg", headers=_NO_STORE)
+    image = await service.camera_snapshot(printer_id, name)
+    return Response(image.content, media_type=image.media_type, headers=_NO_STORE)
 
 
 @router.get(
@@ -84,6 +76,5 @@ async def snapshot(service: Service, printer_id: str, name: CameraName) -> Respo
 )
 async def stream(service: Service, printer_id: str, name: CameraName) -> StreamingResponse:
     """The webcam's MJPEG stream, relayed until the browser goes away."""
-    cam = await _camera(service, printer_id, name)
-    kind, body = await service.webcams.stream(cam, printer_id)
+    kind, body = await service.camera_stream(printer_id, name)
     return StreamingResponse(body, media_type=kind, headers=_NO_STORE)

@@ -10,13 +10,14 @@ reports a success that did not happen.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from typing import Any, BinaryIO, Final
 
 import httpx
 import picows
 
 from kybercore.aio import cancel_and_wait
+from kybercore.core.macros import Macro, macros_of
 from kybercore.core.paths import safe_path
 from kybercore.core.validation import LIMITED_ACTIONS, Verdict, connection_reasons, validate
 from kybercore.core.view import View, facts, fuse
@@ -39,9 +40,11 @@ from kybercore.fleet.actions import (
 )
 from kybercore.fleet.advisor import AdvisorConfig, advise, combine
 from kybercore.fleet.hub import ConsoleLine, Hub, Published
+from kybercore.fleet.images import Image, media_type_of
 from kybercore.fleet.sessions import FleetPrinter, Interest, Listener, Sessions
+from kybercore.fleet.temperatures import Series
 from kybercore.fleet.web_ui import WebUiFinder
-from kybercore.fleet.webcams import WebcamProxy
+from kybercore.fleet.webcams import Webcam, WebcamProxy
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
@@ -355,6 +358,42 @@ class FleetService:
         """The printer's last ``count`` console entries from Moonraker, oldest first:
         ``[{message, time, type: "command"|"response"}]``."""
         return await self.client(printer_id).gcode_store(count)
+
+    # -- reads from the printer's Moonraker (a front asks the printer's owner) ------------
+
+    async def macros(self, printer_id: str) -> list[Macro]:
+        """The printer's G-code macros, read from Klipper's configuration each time (it
+        changes with a firmware restart)."""
+        status = await self.client(printer_id).objects_query({"configfile": ["config"]})
+        return macros_of(status.get("configfile", {}).get("config", {}))
+
+    async def temperatures(self, printer_id: str, minutes: float) -> dict[str, Series]:
+        """The printer's heaters over the last ``minutes``, from the in-memory ring (no
+        request reaches the printer)."""
+        self.config(printer_id)  # an unknown printer is an error, not an empty graph
+        return self.sessions.temperatures.series(printer_id, minutes)
+
+    async def thumbnail(self, printer_id: str, path: str) -> Image:
+        """An image under the printer's ``gcodes/`` (``path`` already checked)."""
+        return Image(await self.client(printer_id).download(path), media_type_of(path))
+
+    async def cameras(self, printer_id: str) -> list[Webcam]:
+        """The printer's enabled webcams (Moonraker's list, a few seconds old at most)."""
+        url = str(self.config(printer_id).moonraker_url)
+        return await self.webcams.cameras(self.client(printer_id), url)
+
+    async def camera_snapshot(self, printer_id: str, name: str) -> Image:
+        """One JPEG from the webcam ``name``."""
+        camera = await self._camera(printer_id, name)
+        return Image(await self.webcams.snapshot(camera, printer_id), "image/jpeg")
+
+    async def camera_stream(self, printer_id: str, name: str) -> tuple[str, AsyncIterator[bytes]]:
+        """The webcam's MJPEG stream: its content type and its bytes, relayed as they come."""
+        return await self.webcams.stream(await self._camera(printer_id, name), printer_id)
+
+    async def _camera(self, printer_id: str, name: str) -> Webcam:
+        url = str(self.config(printer_id).moonraker_url)
+        return await self.webcams.camera(self.client(printer_id), url, printer_id, name)
 
     def _announce(self, printer_id: str, action: str, message: str) -> None:
         event = {"type": "action", "printer": printer_id, "action": action, "ok": True}

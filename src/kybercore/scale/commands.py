@@ -28,9 +28,11 @@ from typing import TYPE_CHECKING, Any, Final
 
 from nats.aio.client import Client
 from nats.aio.msg import Msg
+from nats.errors import MaxPayloadError
 
-from kybercore.errors import KyberCoreError, OutcomeUnknown, OwnerMoving
+from kybercore.errors import ActionRejected, KyberCoreError, OutcomeUnknown, OwnerMoving
 from kybercore.fleet.service import FleetService
+from kybercore.scale.ops import OPS
 from kybercore.scale.wire import (
     EPOCH_HEADER,
     command_subject,
@@ -38,7 +40,6 @@ from kybercore.scale.wire import (
     dumps,
     encode_error,
     encode_outcome,
-    encode_verdict,
     loads,
 )
 
@@ -68,6 +69,16 @@ def _unknown(printer_id: str, what: str, check: str) -> OutcomeUnknown:
     return OutcomeUnknown(
         f"the printer's KyberCore worker {what}, so whether the command ran is unknown. {check}",
         printer=printer_id,
+    )
+
+
+def _too_large(printer_id: str, op: str, size: int) -> ActionRejected:
+    return ActionRejected(
+        f"{printer_id}: the command '{op}' ran on the printer's worker, but its answer is "
+        f"{size / 1024:.0f} kB, more than one NATS message may carry (the server's "
+        "max_payload), so a KyberCore front cannot relay it. Use `kybercore serve`, or the "
+        "printer's own Mainsail or Fluidd, for this.",
+        code="too_large_for_front",
     )
 
 
@@ -177,30 +188,19 @@ class CommandRunner:
             log.exception("%s: command %s failed", printer_id, request["op"])
             error = KyberCoreError(f"{printer_id}: the command failed inside KyberCore ({exc}).")
             body = {"error": encode_error(error)}
-        await msg.respond(dumps(body))
+        data = dumps(body)
+        try:
+            await msg.respond(data)
+        except MaxPayloadError:
+            # Said in an answer that fits: else the front would wait for the outcome in vain.
+            too_large = _too_large(printer_id, request["op"], len(data))
+            await msg.respond(dumps({"error": encode_error(too_large)}))
 
     async def _call(self, printer_id: str, op: str, args: dict[str, Any]) -> Any:
-        service = self._service
-        if op == "act":
-            outcome = await service.act(
-                printer_id, args["action"], args.get("params"),
-                force=bool(args.get("force")), confirm=bool(args.get("confirm")),
-            )  # fmt: skip
-            return encode_outcome(outcome)
         if op == "upload" and self._uploads is not None:
-            return encode_outcome(await self._uploads.receive(service, printer_id, args))
-        if op == "dry_run":
-            verdict = await service.dry_run(
-                printer_id, args["action"], args.get("params"), bool(args.get("force"))
-            )
-            return encode_verdict(verdict)
-        if op == "files":
-            return await service.files(printer_id)
-        if op == "file_metadata":
-            return await service.file_metadata(printer_id, args["filename"])
-        if op == "delete_file":
-            await service.delete_file(printer_id, args["path"])
-            return None
-        if op == "console_history":
-            return await service.console_history(printer_id, int(args["count"]))
-        raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")
+            # Not in OPS: it needs the worker's object store as well as its FleetService.
+            return encode_outcome(await self._uploads.receive(self._service, printer_id, args))
+        run = OPS.get(op)
+        if run is None:
+            raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")
+        return await run(self._service, printer_id, args)

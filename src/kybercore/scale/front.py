@@ -10,10 +10,15 @@ printers held by workers:
 - actions, dry runs, file lists and the console history go to the printer's owner as
   commands (:mod:`.commands`): the owner validates against live state and answers;
 - an uploaded file crosses in the ``kc_uploads`` object store, in chunks, and one command
-  has the owner upload (and start) it (:mod:`.uploads`).
+  has the owner upload (and start) it (:mod:`.uploads`);
+- the reads that need the printer's Moonraker or its worker's memory are commands too: the
+  macros, the temperature graph, a file's thumbnail, the webcam list and a webcam's
+  snapshot (images in base64, refused with ``too_large_for_front`` above
+  :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them).
 
-What a front does not do yet: thumbnails, macros, webcams and the temperature graph (they
-need the printer's Moonraker directly); each says so, with what to do.
+What a front does not do yet: a webcam's live MJPEG stream, which answers 409
+``not_on_front`` naming what to use instead. A stream is endless, so it does not fit one
+request and one answer; the snapshots do (the printer page falls back to them by itself).
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import AsyncIterator, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO, Final
 
@@ -32,11 +37,15 @@ from nats.errors import NoRespondersError
 from nats.errors import TimeoutError as NatsTimeout
 
 from kybercore.aio import cancel_and_wait
+from kybercore.core.macros import Macro
 from kybercore.core.validation import Verdict
 from kybercore.core.view import LivePrinter, View, fuse
-from kybercore.errors import UnknownPrinter, not_on_front
+from kybercore.errors import UnknownPrinter, not_on_front, shorten
 from kybercore.fleet.actions import ActionOutcome
+from kybercore.fleet.images import Image
 from kybercore.fleet.service import FleetService
+from kybercore.fleet.temperatures import Series
+from kybercore.fleet.webcams import Webcam
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry, read_printers
@@ -46,7 +55,15 @@ from kybercore.scale.follow import STALE_SECONDS, FleetCopy
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
 from kybercore.scale.uploads import send_upload
-from kybercore.scale.wire import decode_outcome, decode_verdict, loads, patch_subject
+from kybercore.scale.wire import (
+    decode_image,
+    decode_macros,
+    decode_outcome,
+    decode_verdict,
+    decode_webcams,
+    loads,
+    patch_subject,
+)
 from kybercore.scale.wire import snapshot_subject as snap_subject
 
 log = logging.getLogger(__name__)
@@ -192,7 +209,7 @@ class FrontFleet(FleetService):
     def client(self, printer_id: str) -> MoonrakerClient:
         """Not on a front: its printers' sockets are held by workers."""
         self.config(printer_id)
-        raise not_on_front("Reading the printer's Moonraker directly (macros, thumbnails, webcams)")
+        raise not_on_front("Reading the printer's Moonraker directly")
 
     # -- the registry --------------------------------------------------------------------
 
@@ -301,3 +318,36 @@ class FrontFleet(FleetService):
             printer_id, "console_history", count=count
         )
         return found
+
+    # -- reads -----------------------------------------------------------------------------
+
+    async def macros(self, printer_id: str) -> list[Macro]:
+        """The printer's G-code macros (its owner reads Klipper's configuration)."""
+        return decode_macros(await self._command(printer_id, "macros"))
+
+    async def temperatures(self, printer_id: str, minutes: float) -> dict[str, Series]:
+        """The printer's heaters over the last ``minutes`` (from its owner's ring)."""
+        found: dict[str, Series] = await self._command(printer_id, "temperatures", minutes=minutes)
+        return found
+
+    async def thumbnail(self, printer_id: str, path: str) -> Image:
+        """An image under the printer's ``gcodes/`` (through its owner)."""
+        return decode_image(await self._command(printer_id, "thumbnail", path=path))
+
+    async def cameras(self, printer_id: str) -> list[Webcam]:
+        """The printer's enabled webcams (its owner's list)."""
+        return decode_webcams(await self._command(printer_id, "cameras"))
+
+    async def camera_snapshot(self, printer_id: str, name: str) -> Image:
+        """One JPEG from the webcam ``name`` (through the printer's owner)."""
+        return decode_image(await self._command(printer_id, "camera_snapshot", name=name))
+
+    async def camera_stream(self, printer_id: str, name: str) -> tuple[str, AsyncIterator[bytes]]:
+        """Not on a front: an endless stream does not fit a command and its one answer."""
+        self.config(printer_id)
+        snapshot = f"GET /api/printers/{printer_id}/webcams/{shorten(name)}/snapshot"
+        raise not_on_front(
+            "A webcam's live MJPEG stream",
+            f"use its snapshots instead ({snapshot}, a JPEG each time; the printer page "
+            "switches to them by itself), or `kybercore serve` for the stream",
+        )

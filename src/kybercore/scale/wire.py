@@ -1,5 +1,6 @@
 """What KyberCore's processes say to each other over NATS: the subjects, and how outcomes,
-verdicts and errors cross a process boundary intact.
+verdicts, errors and what a front reads (macros, webcams, images) cross a process boundary
+intact.
 
 An error raised in a worker reaches the front as the same class with the same code,
 message and reasons, so the one HTTP mapping (:mod:`kybercore.api.errors`) answers exactly
@@ -8,17 +9,26 @@ as ``kybercore serve`` would.
 
 from __future__ import annotations
 
+import base64
+import dataclasses
+import math
 from typing import Any, Final
 
 import orjson
 
 from kybercore import errors
+from kybercore.core.macros import Macro
 from kybercore.core.messages import Reason
 from kybercore.core.validation import Verdict
 from kybercore.fleet.actions import ActionOutcome
+from kybercore.fleet.images import Image
+from kybercore.fleet.webcams import Webcam
 
 EPOCH_HEADER: Final = "KC-Epoch"
 """The slot epoch a front knows for the printer: a worker holding another epoch refuses."""
+MAX_IMAGE: Final = 700 * 1024
+"""Bytes of an image a worker sends a front: in base64 (4/3 as long) with its envelope, it
+stays within NATS's default limit of 1 MiB per message."""
 
 
 def patch_subject(slot: int | str) -> str:
@@ -132,3 +142,47 @@ def encode_verdict(verdict: Verdict) -> dict[str, Any]:
 def decode_verdict(data: dict[str, Any]) -> Verdict:
     """The verdict :func:`encode_verdict` described."""
     return Verdict.of(Reason(**r) for r in data["reasons"])
+
+
+# -- reads: macros, webcams, images ----------------------------------------------------------
+
+
+def encode_macros(macros: list[Macro]) -> list[dict[str, Any]]:
+    """A printer's macros as plain data."""
+    return [dataclasses.asdict(m) for m in macros]
+
+
+def decode_macros(data: list[dict[str, Any]]) -> list[Macro]:
+    """The macros :func:`encode_macros` described."""
+    return [Macro(name=str(m["name"]), description=str(m["description"])) for m in data]
+
+
+def encode_webcams(cameras: list[Webcam]) -> list[dict[str, Any]]:
+    """A printer's webcams as plain data."""
+    return [dataclasses.asdict(c) for c in cameras]
+
+
+def decode_webcams(data: list[dict[str, Any]]) -> list[Webcam]:
+    """The webcams :func:`encode_webcams` described."""
+    return [Webcam(**c) for c in data]
+
+
+def encode_image(image: Image, what: str) -> dict[str, Any]:
+    """An image as plain data (its bytes in base64); ``what`` names it ("The thumbnail
+    'x.png'") in the refusal of one over :data:`MAX_IMAGE` bytes, which could not cross."""
+    size = len(image.content)
+    if size > MAX_IMAGE:
+        raise errors.ActionRejected(
+            f"{what} is {math.ceil(size / 1024)} kB; a KyberCore front relays images of at most "
+            f"{MAX_IMAGE // 1024} kB from the printer's worker (NATS's message limit). Open "
+            "it with `kybercore serve`, or the printer's own Mainsail or Fluidd.",
+            code="too_large_for_front",
+        )
+    encoded = base64.b64encode(image.content).decode("ascii")
+    return {"media_type": image.media_type, "base64": encoded}
+
+
+def decode_image(data: dict[str, Any]) -> Image:
+    """The image :func:`encode_image` described."""
+    content = base64.b64decode(str(data["base64"]), validate=True)
+    return Image(content=content, media_type=str(data["media_type"]))
