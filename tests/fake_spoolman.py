@@ -24,7 +24,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from kybercore.sim.stack import PrinterStack, free_port
-from tests.web.support import wait_until
+from tests.helpers import wait_until
 
 
 def spool(spool_id: int, material: str, color: str, remaining: float) -> dict[str, Any]:

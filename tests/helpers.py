@@ -30,6 +30,19 @@ async def wait_for(
     return time.monotonic() - start
 
 
+def wait_until(
+    predicate: Callable[[], bool], timeout: float = 15.0, what: str = "condition"
+) -> float:
+    """Wait until ``predicate()`` is true, from synchronous code (browser tests, other
+    processes' state); return the seconds it took."""
+    start = time.monotonic()
+    while not predicate():
+        if time.monotonic() - start > timeout:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.05)  # poll: wait for the predicate, deadline above
+    return time.monotonic() - start
+
+
 async def _holds(predicate: Callable[[], bool | Awaitable[bool]]) -> bool:
     result = predicate()
     if inspect.isawaitable(result):

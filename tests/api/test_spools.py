@@ -16,7 +16,8 @@ from kybercore.jobs.dispatcher import TICK_SECONDS as DISPATCHER_TICK
 from kybercore.sim.stack import PrinterStack
 from tests.api.conftest import StartEdge, add_printer
 from tests.fake_spoolman import FakeSpoolman, printer_with_spoolman, spool
-from tests.web.support import SAMPLE, wait_until
+from tests.helpers import wait_until
+from tests.web.support import SAMPLE
 
 pytestmark = pytest.mark.integration
 

@@ -8,8 +8,7 @@ import pytest
 
 from kybercore.sim.stack import PrinterStack
 from tests.api.conftest import StartEdge, add_printer
-from tests.helpers import KyberCoreServer
-from tests.web.support import wait_until
+from tests.helpers import KyberCoreServer, wait_until
 
 pytestmark = pytest.mark.integration
 

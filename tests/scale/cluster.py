@@ -9,8 +9,7 @@ import os
 import signal
 import subprocess
 import sys
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,7 @@ from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
 from kybercore.sim.stack import PrinterStack, free_port
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, wait_until
 
 SLOTS = 16
 TTL = 3.0
@@ -99,12 +98,28 @@ def two_workers_and_a_front(
     cluster = Cluster(broker, folder, front, shared)
     try:
         w1 = cluster.worker("w1")
-        wait("w1 owns every slot", lambda: len(w1.owned()) == SLOTS, SETTLE)
+        wait_until(lambda: len(w1.owned()) == SLOTS, SETTLE, "w1 owns every slot")
         cluster.worker("w2")
         front.start()
         yield cluster
     finally:
         cluster.close()
+
+
+@contextlib.contextmanager
+def fresh_cluster(
+    stacks: list[PrinterStack], folder: Path, database_url: str = ""
+) -> Iterator[Cluster]:
+    """A nats-server of its own, then :func:`two_workers_and_a_front`; yields once every
+    printer is fresh through the front. Everything is stopped after."""
+    broker = LocalServer(folder / "nats")
+    broker.start()
+    try:
+        with two_workers_and_a_front(stacks, broker, folder, database_url) as started:
+            wait_until(lambda: started.all_fresh(len(stacks)), 60, "every printer fresh")
+            yield started
+    finally:
+        broker.close()
 
 
 class Cluster:
@@ -146,13 +161,3 @@ class Cluster:
         self.front.stop()
         for worker in self.workers.values():
             worker.stop()
-
-
-def wait(what: str, predicate: Callable[[], bool], timeout: float) -> float:
-    """Poll ``predicate`` until true; the seconds it took (AssertionError after timeout)."""
-    began = time.monotonic()
-    while not predicate():
-        if time.monotonic() - began > timeout:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.05)  # poll other processes' state, deadline above
-    return time.monotonic() - began

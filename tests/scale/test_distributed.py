@@ -16,7 +16,8 @@ import pytest
 from kybercore.scale.broker import LocalServer
 from kybercore.scale.slots import slot_of
 from kybercore.sim.stack import PrinterStack
-from tests.scale.cluster import SETTLE, SLOTS, TTL, Cluster, two_workers_and_a_front, wait
+from tests.helpers import wait_until
+from tests.scale.cluster import SETTLE, SLOTS, TTL, Cluster, two_workers_and_a_front
 from tests.scale.replay import no_overlap
 
 # A dead worker's printers are fresh again within TTL + TTL/3 + a Moonraker connect; the
@@ -71,8 +72,8 @@ def test_failover_rebalance_fencing_and_broker_restart(
     workers = cluster.workers
     w1, w2 = workers["w1"], workers["w2"]
     sent: dict[str, int] = {}
-    took = wait("an even split", lambda: len(w1.owned()) == len(w2.owned()) == 8, SETTLE)
-    wait("every printer fresh through the front", lambda: cluster.all_fresh(count), 60)
+    took = wait_until(lambda: len(w1.owned()) == len(w2.owned()) == 8, SETTLE, "an even split")
+    wait_until(lambda: cluster.all_fresh(count), 60, "every printer fresh through the front")
     print(f"8/8 split in {took:.1f} s")
     assert respond(cluster, "fleet-a", sent).status_code == 200
 
@@ -86,8 +87,8 @@ def test_failover_rebalance_fencing_and_broker_restart(
     assert answer.status_code == 503, answer.text
     assert answer.json()["error"]["code"] == "owner_moving"
     assert time.monotonic() - began < AT_ONCE
-    wait("fleet-a stale or moved", lambda: not cluster.all_fresh(count), SETTLE)
-    wait("every printer fresh again", lambda: cluster.all_fresh(count), FRESH_AGAIN)
+    wait_until(lambda: not cluster.all_fresh(count), SETTLE, "fleet-a stale or moved")
+    wait_until(lambda: cluster.all_fresh(count), FRESH_AGAIN, "every printer fresh again")
     fresh_in = time.monotonic() - killed_at
     print(f"fresh again {fresh_in:.1f} s after kill -9 (TTL {TTL:g} s)")
     assert fresh_in <= FRESH_AGAIN
@@ -95,9 +96,9 @@ def test_failover_rebalance_fencing_and_broker_restart(
 
     # 2. A third worker joins: the two share the slots.
     w3 = cluster.worker("w3")
-    took = wait("w2 and w3 at 8/8", lambda: len(w2.owned()) == len(w3.owned()) == 8, SETTLE)
+    took = wait_until(lambda: len(w2.owned()) == len(w3.owned()) == 8, SETTLE, "w2 and w3 at 8/8")
     print(f"rebalanced in {took:.1f} s")
-    wait("every printer fresh after the rebalance", lambda: cluster.all_fresh(count), SETTLE)
+    wait_until(lambda: cluster.all_fresh(count), SETTLE, "every printer fresh after the rebalance")
 
     # 3. Pause fleet-a's owner past its lease: the other takes over; the paused one,
     #    continued, fences itself and runs none of the commands sent meanwhile.
@@ -108,21 +109,21 @@ def test_failover_rebalance_fencing_and_broker_restart(
         answer = respond(cluster, "fleet-a", sent)
         # Its subscriptions still exist: no acknowledgement, so the outcome is unknown.
         assert answer.status_code in (503, 504), answer.text
-        wait("the other worker owns every slot", lambda: len(other.owned()) == SLOTS, SETTLE)
+        wait_until(lambda: len(other.owned()) == SLOTS, SETTLE, "the other worker owns every slot")
     finally:
         paused.signal(signal.SIGCONT)
-    wait("every printer fresh after the takeover", lambda: cluster.all_fresh(count), SETTLE)
-    wait("the paused worker dropped its slots", lambda: not paused.owned(), SETTLE)
+    wait_until(lambda: cluster.all_fresh(count), SETTLE, "every printer fresh after the takeover")
+    wait_until(lambda: not paused.owned(), SETTLE, "the paused worker dropped its slots")
     assert respond(cluster, "fleet-a", sent).status_code == 200
 
     # 4. The broker restarts: every process reconnects, every printer fresh again.
     cluster.broker.stop()
     cluster.broker.start(port=cluster.broker.port)
-    wait("every printer fresh after the broker restart", lambda: cluster.all_fresh(count), 60)
+    wait_until(lambda: cluster.all_fresh(count), 60, "every printer fresh after the broker restart")
     # JetStream recovers its streams for a few seconds after a restart: leases may still
     # move, and a command meanwhile is refused with "owner moving, retry" (never run).
-    wait(
-        "a command runs again", lambda: respond(cluster, "fleet-a", sent).status_code == 200, SETTLE
+    wait_until(
+        lambda: respond(cluster, "fleet-a", sent).status_code == 200, SETTLE, "a command runs again"
     )
 
     # Every command answered 200 ran exactly once; none ran twice.
@@ -133,7 +134,7 @@ def test_failover_rebalance_fencing_and_broker_restart(
 
 
 def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) -> None:
-    wait("every printer fresh", lambda: cluster.all_fresh(3), 60)
+    wait_until(lambda: cluster.all_fresh(3), 60, "every printer fresh")
     url = cluster.front.url
     answer = httpx.post(f"{url}/api/printers/fleet-b/gcode", json={"script": "M115"}, timeout=30)
     assert answer.status_code == 200, answer.text
@@ -150,10 +151,10 @@ def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) ->
     # Edits land in the registry bucket and the workers follow them.
     renamed = httpx.patch(f"{url}/api/printers/fleet-b", json={"name": "Renamed B"}, timeout=30)
     assert renamed.status_code == 200, renamed.text
-    wait(
-        "the owner's view shows the new name",
+    wait_until(
         lambda: _name(cluster, "fleet-b") == "Renamed B",
         SETTLE,
+        "the owner's view shows the new name",
     )
     # What a front does not do yet says so, as a clear refusal (not a 500).
     queue = httpx.get(f"{url}/api/queue", timeout=10)

@@ -16,10 +16,10 @@ import PIL.Image
 import pytest
 
 from kybercore.core.macros import macros_of
-from kybercore.scale.broker import LocalServer
 from kybercore.scale.wire import MAX_IMAGE
 from kybercore.sim.stack import PrinterStack
-from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
+from tests.helpers import wait_until
+from tests.scale.cluster import Cluster, fresh_cluster
 
 pytestmark = pytest.mark.integration
 
@@ -32,15 +32,8 @@ PNG = b"\x89PNG\r\n\x1a\n"
 def cluster(
     fleet_stacks: list[PrinterStack], tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[Cluster]:
-    folder = tmp_path_factory.mktemp("front-reads")
-    broker = LocalServer(folder / "nats")
-    broker.start()
-    try:
-        with two_workers_and_a_front(fleet_stacks, broker, folder) as started:
-            wait("every printer fresh", lambda: started.all_fresh(len(fleet_stacks)), 60)
-            yield started
-    finally:
-        broker.close()
+    with fresh_cluster(fleet_stacks, tmp_path_factory.mktemp("front-reads")) as started:
+        yield started
 
 
 @pytest.fixture
@@ -92,7 +85,7 @@ def test_the_temperature_graph_follows_a_target_set_through_the_front(
     answer = front.post("/fleet-b/actions/set_temperature", json={"extruder": target})
     assert answer.status_code == 200, answer.text
     try:
-        wait("the graph shows the new target", lambda: target in extruder()["target"], 30)
+        wait_until(lambda: target in extruder()["target"], 30, "the graph shows the new target")
     finally:
         front.post("/fleet-b/actions/set_temperature", json={"extruder": 0})
     series = extruder()
@@ -120,7 +113,7 @@ def test_a_thumbnail_is_the_image_moonraker_serves(
             found: list[dict[str, Any]] = meta.json().get("thumbnails", [])
             return found if meta.status_code == 200 else []
 
-        wait("Moonraker's metadata of the file", lambda: bool(thumbnails()), 30)
+        wait_until(lambda: bool(thumbnails()), 30, "Moonraker's metadata of the file")
         path = thumbnails()[0]["relative_path"]
         answer = front.get("/fleet-c/files/thumbnail", params={"path": path})
         assert answer.status_code == 200, answer.text

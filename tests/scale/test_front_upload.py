@@ -13,10 +13,9 @@ from typing import Any
 import httpx
 import pytest
 
-from kybercore.scale.broker import LocalServer
 from kybercore.sim.stack import PrinterStack
-from tests.helpers import travel_gcode
-from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
+from tests.helpers import travel_gcode, wait_until
+from tests.scale.cluster import Cluster, fresh_cluster
 from tests.scale.objects import objects_left
 
 pytestmark = pytest.mark.integration
@@ -27,11 +26,8 @@ MB = 1024 * 1024
 
 
 @pytest.fixture
-def cluster(
-    fleet_stacks: list[PrinterStack], nats_server: LocalServer, tmp_path: Path
-) -> Iterator[Cluster]:
-    with two_workers_and_a_front(fleet_stacks, nats_server, tmp_path) as started:
-        wait("every printer fresh", lambda: started.all_fresh(len(fleet_stacks)), 60)
+def cluster(fleet_stacks: list[PrinterStack], tmp_path: Path) -> Iterator[Cluster]:
+    with fresh_cluster(fleet_stacks, tmp_path) as started:
         yield started
 
 
@@ -113,7 +109,9 @@ def test_an_upload_with_start_prints_it_on_the_printer(
 ) -> None:
     stack = stack_of(fleet_stacks, "fleet-a")
     url = cluster.front.url
-    wait("fleet-a idle", lambda: job_state(cluster, "fleet-a") not in ("printing", "paused"), 30)
+    wait_until(
+        lambda: job_state(cluster, "fleet-a") not in ("printing", "paused"), 30, "fleet-a idle"
+    )
     name = f"started-{uuid.uuid4().hex[:6]}.gcode"
     data = travel_gcode()
     try:
@@ -121,22 +119,22 @@ def test_an_upload_with_start_prints_it_on_the_printer(
         assert (body["uploaded"], body["started"], body["start"]["ok"]) == (True, True, True)
         assert "Uploaded" in body["message"]
         printing = {"state": "printing", "filename": name}
-        wait(
-            "the printer printing the file",
+        wait_until(
             lambda: printing.items() <= print_stats(stack).items(),
             PRINTS_WITHIN,
+            "the printer printing the file",
         )
         shown = lambda: job_state(cluster, "fleet-a") == "printing"  # noqa: E731
-        wait("the front showing it printing", shown, 15)
+        wait_until(shown, 15, "the front showing it printing")
         assert on_moonraker(stack, name) == data
         assert objects_left(cluster.broker.url)[0] == []
     finally:
         # Leave the shared printer idle: cancelled, then the job forgotten.
         httpx.post(f"{url}/api/printers/fleet-a/actions/cancel", json={}, timeout=30)
-        wait(
-            "fleet-a no longer printing",
+        wait_until(
             lambda: print_stats(stack)["state"] not in ("printing", "paused"),
             30,
+            "fleet-a no longer printing",
         )
         reset = httpx.post(
             f"{url}/api/printers/fleet-a/gcode", json={"script": "SDCARD_RESET_FILE"}, timeout=30

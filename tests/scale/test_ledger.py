@@ -11,12 +11,11 @@ from typing import Any
 import httpx
 import pytest
 
-from kybercore.scale.broker import LocalServer
 from kybercore.sim.stack import PrinterStack
 from tests.db.postgres import PostgresServer, PostgresUnavailable
-from tests.helpers import travel_gcode
+from tests.helpers import travel_gcode, wait_until
 from tests.jobs.conftest import postgres_server, unavailable
-from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
+from tests.scale.cluster import Cluster, fresh_cluster
 
 __all__ = ["postgres_server"]
 
@@ -38,10 +37,9 @@ def shared_database(postgres_server: PostgresServer | PostgresUnavailable) -> It
 
 @pytest.fixture
 def cluster(
-    fleet_stacks: list[PrinterStack], nats_server: LocalServer, tmp_path: Path, shared_database: str
+    fleet_stacks: list[PrinterStack], tmp_path: Path, shared_database: str
 ) -> Iterator[Cluster]:
-    with two_workers_and_a_front(fleet_stacks, nats_server, tmp_path, shared_database) as started:
-        wait("every printer fresh", lambda: started.all_fresh(len(fleet_stacks)), 60)
+    with fresh_cluster(fleet_stacks, tmp_path, shared_database) as started:
         yield started
 
 
@@ -68,7 +66,7 @@ def test_a_print_through_a_front_reaches_its_history_and_statistics(
         page = front_get(cluster, "/api/history", printer=printer, file="nats-ledger")
         return any(row["status"] == "completed" for row in page["items"])
 
-    wait("the finished print in the front's history", recorded, PRINT_WITHIN)
+    wait_until(recorded, PRINT_WITHIN, "the finished print in the front's history")
     # One row per job, however often the worker's catch-ups read it.
     page = front_get(cluster, "/api/history", printer=printer, file="nats-ledger")
     assert page["total"] == 1, page

@@ -17,7 +17,7 @@ import sys
 import tempfile
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +26,7 @@ import pytest
 
 from kybercore.sim.mcu_protocol import encode_block
 from kybercore.sim.printer_cfg import PrinterSpec, render_printer_cfg
+from tests.helpers import wait_until
 
 KLIPPY_PYTHON = Path(
     os.environ.get(
@@ -63,16 +64,6 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
             proc.wait(timeout=10)
 
 
-def _wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> float:
-    """Poll until `predicate` holds; returns the seconds it took."""
-    start = time.monotonic()
-    while not predicate():
-        if time.monotonic() - start > timeout:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.05)  # poll: wait for the predicate, deadline above
-    return time.monotonic() - start
-
-
 # ----- the MCU process on its own -------------------------------------------------------------
 
 
@@ -82,7 +73,7 @@ def test_mcu_links_a_raw_pty_and_removes_the_link_on_sigterm(tmp_path: Path) -> 
     os.symlink("/nonexistent/pts", link)  # stale: must be replaced
     proc = _start_mcu(link, tmp_path / "mcu.log")
     try:
-        _wait_for(lambda: os.path.realpath(link).startswith("/dev/pts/"), 10, "the pty link")
+        wait_until(lambda: os.path.realpath(link).startswith("/dev/pts/"), 10, "the pty link")
         # The link is usable: an identify request gets an answer.
         fd = os.open(link, os.O_RDWR | os.O_NOCTTY)
         try:
@@ -202,7 +193,7 @@ class Printer:
                 pass
             return False
 
-        return _wait_for(ready, timeout, "Klippy ready")
+        return wait_until(ready, timeout, "Klippy ready")
 
     def log(self) -> str:
         return (self.dir / "klippy.log").read_text(errors="replace")
@@ -225,7 +216,7 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
     mcu = _start_mcu(link, base / "mcu.log", "--heat-rate", str(HEAT_FACTOR))
     klippy: subprocess.Popen[bytes] | None = None
     try:
-        _wait_for(link.exists, 10, "the MCU's pty link")
+        wait_until(link.exists, 10, "the MCU's pty link")
         start = time.monotonic()
         with (base / "klippy.out").open("ab") as out:
             klippy = subprocess.Popen(
@@ -244,7 +235,7 @@ def printer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Printer]:
                 stdout=out,
                 stderr=subprocess.STDOUT,
             )
-        _wait_for(api_path.exists, 60, "Klippy's API socket")
+        wait_until(api_path.exists, 60, "Klippy's API socket")
         vprinter = Printer(base, api_path, mcu, klippy, 0.0, KlippyApi(api_path))
         vprinter.reconnect(timeout=60)
         vprinter.ready_seconds = time.monotonic() - start
@@ -301,7 +292,7 @@ def test_heaters_rise_toward_their_targets(printer: Printer) -> None:
         hotend, bed = temps()
         return hotend > start_hotend + 5 and bed > start_bed + 1
 
-    _wait_for(rising, 30, "both heaters to rise toward their targets")
+    wait_until(rising, 30, "both heaters to rise toward their targets")
     printer.api.gcode("M190 S60\nM109 S200")
     print(
         f"\nMEASURED heat to bed 60 C + hotend 200 C at --heat-rate {HEAT_FACTOR}: "
@@ -349,10 +340,10 @@ def test_print_pause_resume_cancel(printer: Printer) -> None:
         return value
 
     # Progress moves once homing and heating inside the job are done and moves stream.
-    _wait_for(lambda: progress() > 0.05, 60, "print progress")
+    wait_until(lambda: progress() > 0.05, 60, "print progress")
     assert api.status(print_stats=["state"])["print_stats"]["state"] == "printing"
     first = progress()
-    _wait_for(lambda: progress() > first, 10, "progress to increase")
+    wait_until(lambda: progress() > first, 10, "progress to increase")
 
     seconds = api.gcode("PAUSE")
     assert api.status(print_stats=["state"])["print_stats"]["state"] == "paused"
@@ -367,12 +358,12 @@ def test_print_pause_resume_cancel(printer: Printer) -> None:
         assert now["print_duration"] == paused["print_duration"]
         return bool(now["total_duration"] >= paused["total_duration"] + 1.0)
 
-    _wait_for(a_paused_second, 30, "a second of Klippy's clock while paused")
+    wait_until(a_paused_second, 30, "a second of Klippy's clock while paused")
     print(f"\nMEASURED PAUSE: {seconds:.2f} s")
 
     api.gcode("RESUME")
     assert api.status(print_stats=["state"])["print_stats"]["state"] == "printing"
-    _wait_for(lambda: progress() > paused_at, 10, "progress after resume")
+    wait_until(lambda: progress() > paused_at, 10, "progress after resume")
 
     seconds = api.gcode("CANCEL_PRINT")
     print(f"\nMEASURED CANCEL_PRINT: {seconds:.2f} s")
@@ -396,10 +387,10 @@ def test_print_pause_resume_cancel(printer: Printer) -> None:
 def test_emergency_stop_then_firmware_restart(printer: Printer) -> None:
     start = time.monotonic()
     printer.api.call("emergency_stop")
-    _wait_for(lambda: printer.api.state() == "shutdown", 10, "shutdown")
+    wait_until(lambda: printer.api.state() == "shutdown", 10, "shutdown")
     print(f"\nMEASURED emergency_stop to shutdown: {time.monotonic() - start:.2f} s")
     # The MCU itself answered the emergency_stop command with its shutdown message.
-    _wait_for(
+    wait_until(
         lambda: "MCU 'mcu' shutdown: Command request" in printer.log(),
         10,
         "the MCU's shutdown report",

@@ -3,14 +3,12 @@ the dashboard, find tiles."""
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 from playwright.sync_api import Locator, Page, expect
 
-from tests.helpers import KyberCoreServer, travel_gcode
+from tests.helpers import KyberCoreServer, travel_gcode, wait_until
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -45,14 +43,6 @@ def make_idle(server: KyberCoreServer, api: httpx.Client) -> None:
                 f"/api/printers/{printer_id}/gcode", json={"script": "SDCARD_RESET_FILE"}
             )
             assert answer.status_code == 200, answer.text
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = 15, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.1)  # poll: wait for the predicate, deadline above
 
 
 def thumbnail_block() -> str:

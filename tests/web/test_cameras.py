@@ -9,8 +9,8 @@ from collections.abc import Callable
 import pytest
 from playwright.sync_api import Page, Request, expect
 
-from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, open_fleet, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import ARTIFACTS, open_fleet, tile
 
 pytestmark = pytest.mark.browser
 

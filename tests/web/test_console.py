@@ -12,9 +12,9 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from kybercore.sim.stack import PrinterStack
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, wait_until
 from tests.web.conftest import ConsoleErrors
-from tests.web.support import ARTIFACTS, open_fleet, start_print, tile, wait_until
+from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 

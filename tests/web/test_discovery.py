@@ -18,8 +18,8 @@ from zeroconf import ServiceInfo, Zeroconf
 from kybercore.fleet.discovery import SERVICE_TYPE
 from kybercore.sim.stack import PrinterStack
 from tests.conftest import MDNS
-from tests.helpers import KyberCoreServer
-from tests.web.support import open_fleet, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import open_fleet, tile
 
 pytestmark = pytest.mark.browser
 

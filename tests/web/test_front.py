@@ -11,9 +11,8 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from kybercore.scale.broker import LocalServer
 from kybercore.sim.stack import PrinterStack
-from tests.scale.cluster import Cluster, two_workers_and_a_front, wait
+from tests.scale.cluster import Cluster, fresh_cluster
 from tests.web.support import expect_ready_tiles, open_fleet, tile
 
 pytestmark = pytest.mark.browser
@@ -21,14 +20,8 @@ pytestmark = pytest.mark.browser
 
 @pytest.fixture
 def cluster(fleet_stacks: list[PrinterStack], tmp_path: Path) -> Iterator[Cluster]:
-    broker = LocalServer(tmp_path / "nats")
-    broker.start()
-    try:
-        with two_workers_and_a_front(fleet_stacks, broker, tmp_path) as started:
-            wait("every printer fresh", lambda: started.all_fresh(len(fleet_stacks)), 60)
-            yield started
-    finally:
-        broker.close()
+    with fresh_cluster(fleet_stacks, tmp_path) as started:
+        yield started
 
 
 def test_the_overview_on_a_front_is_live_and_acts(

@@ -12,8 +12,8 @@ import httpx
 import pytest
 from playwright.sync_api import Locator, Page, expect
 
-from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, open_fleet, start_print, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 

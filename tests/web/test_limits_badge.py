@@ -9,8 +9,8 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.hardening.faults import standin_process
-from tests.helpers import KyberCoreServer
-from tests.web.support import open_fleet, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import open_fleet, tile
 
 pytestmark = pytest.mark.browser
 

@@ -17,10 +17,10 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from kybercore.notify.senders import EVENT_HEADER, SIGNATURE_HEADER, TIMESTAMP_HEADER, verify
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, wait_until
 from tests.notify.receiver import Receiver
 from tests.web.conftest import ConsoleErrors
-from tests.web.support import ARTIFACTS, open_fleet, wait_until
+from tests.web.support import ARTIFACTS, open_fleet
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 

@@ -11,8 +11,8 @@ import httpx
 import pytest
 from playwright.sync_api import Locator, Page, expect
 
-from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, open_fleet, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import ARTIFACTS, open_fleet, tile
 
 pytestmark = pytest.mark.browser
 

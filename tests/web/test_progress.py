@@ -16,8 +16,8 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, FLEET, open_fleet, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import ARTIFACTS, FLEET, open_fleet
 
 pytestmark = pytest.mark.browser
 

@@ -13,8 +13,8 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
-from tests.helpers import KyberCoreServer
-from tests.web.support import open_fleet, slow_print, tile, wait_until
+from tests.helpers import KyberCoreServer, wait_until
+from tests.web.support import open_fleet, slow_print, tile
 
 pytestmark = pytest.mark.browser
 
