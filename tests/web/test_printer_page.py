@@ -86,6 +86,15 @@ def test_home_jog_target_and_a_macro_reach_klipper(
     expect(section.locator(".pp-homed")).to_have_text("Homed: X Y Z", timeout=60_000)
     expect(jog).to_be_enabled()
     start_x = settled_x(api, "fleet-a")
+    # Seen once on a loaded CI machine: after G28 Klipper put X at -262.7, outside the
+    # axis (0-220), from where KyberCore rightly refuses the jog. The virtual MCU's endstop
+    # fired late against the homing move; homing X again gives the real printer's 0.
+    for _ in range(3):
+        if 0 <= start_x <= 200:
+            break
+        assert api.post("/api/printers/fleet-a/gcode", json={"script": "G28 X"}).status_code == 200
+        start_x = settled_x(api, "fleet-a")
+    assert 0 <= start_x <= 200, start_x
     section.get_by_role("radiogroup", name="Step (mm)").get_by_text("10", exact=True).click()
     jog.click()
     wait_until(
