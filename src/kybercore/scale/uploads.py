@@ -135,14 +135,29 @@ def check_copy(order: UploadOrder, size: int, sha256: str, printer_id: str) -> N
         )
 
 
-class HashingReader(io.BufferedIOBase):
+class _Counted(io.BufferedIOBase):
+    """Bytes passing through, counted and hashed (sha256)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._hash = hashlib.sha256()
+        self.size = 0
+
+    def _count(self, data: bytes | memoryview) -> None:
+        self._hash.update(data)
+        self.size += len(data)
+
+    def hexdigest(self) -> str:
+        """The sha256 of what passed."""
+        return self._hash.hexdigest()
+
+
+class HashingReader(_Counted):
     """``source`` read through, counted and hashed (the object store reads it in a thread)."""
 
     def __init__(self, source: BinaryIO) -> None:
         super().__init__()
         self._source = source
-        self._hash = hashlib.sha256()
-        self.size = 0
 
     def readable(self) -> bool:
         """It is."""
@@ -153,23 +168,16 @@ class HashingReader(io.BufferedIOBase):
         view = memoryview(buffer).cast("B")
         data = self._source.read(len(view))
         view[: len(data)] = data
-        self._hash.update(data)
-        self.size += len(data)
+        self._count(data)
         return len(data)
 
-    def hexdigest(self) -> str:
-        """The sha256 of what was read."""
-        return self._hash.hexdigest()
 
-
-class HashingWriter(io.BufferedIOBase):
+class HashingWriter(_Counted):
     """Writes to ``target``, counted and hashed (the object store writes in a thread)."""
 
     def __init__(self, target: BinaryIO) -> None:
         super().__init__()
         self._target = target
-        self._hash = hashlib.sha256()
-        self.size = 0
 
     def writable(self) -> bool:
         """It is."""
@@ -178,13 +186,8 @@ class HashingWriter(io.BufferedIOBase):
     def write(self, data: Any) -> int:
         """Write ``data`` through."""
         chunk = bytes(data)
-        self._hash.update(chunk)
-        self.size += len(chunk)
+        self._count(chunk)
         return self._target.write(chunk)
-
-    def hexdigest(self) -> str:
-        """The sha256 of what was written."""
-        return self._hash.hexdigest()
 
 
 def _broker_away(printer_id: str, doing: str, exc: BaseException) -> TransferFailed:
