@@ -7,7 +7,7 @@ import httpx
 
 from kybercore.fleet.hub import Hub
 from kybercore.fleet.sessions import FleetPrinter, Interest, Sessions
-from kybercore.jobs import dispatcher, tracker
+from kybercore.jobs import printers
 from kybercore.ledger import service as ledger
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -46,14 +46,13 @@ def test_the_services_interests_pass_what_they_read_and_skip_the_rest() -> None:
     # The ledger: print states only.
     assert ledger._INTEREST.wants(STATE)
     assert not ledger._INTEREST.wants({**PROGRESS, "webhooks": {"state": "ready"}})
-    # The queue's tracker: print states, files, Klippy.
-    assert tracker._INTEREST.wants({"print_stats": {"filename": "a.gcode"}})
-    assert tracker._INTEREST.wants({"webhooks": {"state": "shutdown"}})
-    assert not tracker._INTEREST.wants({**PROGRESS, **TEMPERATURES})
-    # The dispatcher: print stats (a start seen) and heaters (the heating budget).
-    assert dispatcher._INTEREST.wants(PROGRESS)
-    assert dispatcher._INTEREST.wants({"extruder": {"temperature": 1.0}})
-    assert not dispatcher._INTEREST.wants({"toolhead": {"position": [0, 0, 0, 0]}})
+    # The queue (dispatcher and tracker): print states, files, Klippy, and heaters (a start
+    # seen, the heating budget); never progress alone.
+    assert printers._INTEREST.wants({"print_stats": {"filename": "a.gcode"}})
+    assert printers._INTEREST.wants({"webhooks": {"state": "shutdown"}})
+    assert printers._INTEREST.wants({"extruder": {"temperature": 1.0}})
+    assert not printers._INTEREST.wants(PROGRESS)
+    assert not printers._INTEREST.wants({"toolhead": {"position": [0, 0, 0, 0]}})
 
 
 async def test_sessions_skip_a_listener_for_deltas_outside_its_interest() -> None:

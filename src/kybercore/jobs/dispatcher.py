@@ -33,34 +33,15 @@ from typing import Final
 
 from kybercore.aio import cancel_and_wait
 from kybercore.core.numbers import finite_number
-from kybercore.core.view import facts
-from kybercore.errors import (
-    ActionRejected,
-    KyberCoreError,
-    PrinterUnreachable,
-)
-from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import FleetPrinter, Interest
+from kybercore.errors import ActionRejected, KyberCoreError, PrinterUnreachable
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job
-from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, is_heating, plan, power_group
+from kybercore.jobs.printers import Change, QueuePrinter, QueuePrinters
+from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, plan, power_group
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker, seen
-from kybercore.moonraker.events import (
-    ConnectionChanged,
-    KlippyChanged,
-    SessionEvent,
-    StatusDelta,
-    StatusSnapshot,
-)
-from kybercore.moonraker.objects import Status
 
 log = logging.getLogger(__name__)
-
-# The deltas _hear() reads; the fleet need not call it with the others.
-_INTEREST: Final = Interest(
-    {"print_stats": None, "webhooks": None, "extruder": None, "heater_bed": None}
-)
 
 TICK_SECONDS: Final = 30.0
 """The slow tick: ``not_before`` times come due, and a safety check of every print."""
@@ -76,7 +57,7 @@ class Dispatcher:
 
     def __init__(
         self,
-        fleet: FleetService,
+        printers: QueuePrinters,
         store: JobStore,
         files: JobFiles,
         tracker: Tracker,
@@ -86,7 +67,7 @@ class Dispatcher:
         tick: float = TICK_SECONDS,
         clock: Callable[[], datetime] = lambda: datetime.now(UTC),
     ) -> None:
-        self._fleet = fleet
+        self._printers = printers
         self._store = store
         self._files = files
         self._tracker = tracker
@@ -98,7 +79,6 @@ class Dispatcher:
         self._planning = asyncio.Lock()
         self._loop_task: asyncio.Task[None] | None = None
         self._stop_listening: Callable[[], None] | None = None
-        self._stop_watching: Callable[[], None] | None = None
         self._runs: dict[str, asyncio.Task[None]] = {}
         """Printer -> the task starting an attempt there."""
         self._running: dict[int, str] = {}
@@ -116,10 +96,8 @@ class Dispatcher:
     # -- lifecycle ---------------------------------------------------------------------
 
     def start(self) -> None:
-        """Listen to the fleet and run the loop."""
-        self._stop_listening = self._fleet.listen(self._hear, _INTEREST)
-        # A fuller spool may let a job that was refused for want of filament go there.
-        self._stop_watching = self._fleet.sessions.watch_spools(lambda _printer: self.wake())
+        """Listen to the printers and run the loop."""
+        self._stop_listening = self._printers.listen(self._hear)
         self._loop_task = asyncio.create_task(self._loop(), name="queue-dispatcher")
         self.wake()
 
@@ -129,9 +107,6 @@ class Dispatcher:
         if self._stop_listening is not None:
             self._stop_listening()
             self._stop_listening = None
-        if self._stop_watching is not None:
-            self._stop_watching()
-            self._stop_watching = None
         await cancel_and_wait(self._loop_task)
         self._loop_task = None
         runs = list(self._runs.values())
@@ -223,23 +198,23 @@ class Dispatcher:
         self, gates: dict[str, Gate], usage: dict[str, tuple[float, datetime | None]]
     ) -> list[PrinterSnapshot]:
         """Every printer as the planner sees it now."""
-        return [self._snapshot(p, gates, usage) for p in self._fleet.sessions.all()]
+        return [self._snapshot(p, gates, usage) for p in self._printers.all()]
 
     def _snapshot(
         self,
-        printer: FleetPrinter,
+        printer: QueuePrinter,
         gates: dict[str, Gate],
         usage: dict[str, tuple[float, datetime | None]],
     ) -> PrinterSnapshot:
-        config, live = printer.config, printer.live
+        config = printer.config
         seconds, last_used = usage.get(config.id, (0.0, None))
         return PrinterSnapshot(
             id=config.id,
-            facts=facts(config, live),
+            facts=printer.facts,
             gate=gates.get(config.id) or Gate(config.id, "available", "", _EPOCH, None, ""),
             tags=tuple(config.tags),
             power_group=power_group(config),
-            heating=is_heating(live.status),
+            heating=printer.heating,
             usage_seconds=seconds,
             last_used=last_used,
         )
@@ -286,12 +261,7 @@ class Dispatcher:
         printer, name = attempt.printer, attempt.upload_name
         attempt = await self._store.advance(attempt.id, "uploading")
         try:
-            client = self._fleet.client(printer)
-            handle = await asyncio.to_thread(self._files.path(job.file.sha256).open, "rb")
-            try:
-                await client.upload(name, handle)
-            finally:
-                await asyncio.to_thread(handle.close)
+            await self._printers.upload(printer, name, self._files.path(job.file.sha256))
         except (KyberCoreError, OSError) as exc:
             why = exc.message if isinstance(exc, KyberCoreError) else str(exc)
             return await self._failed_to_start(attempt, f"the upload to {printer} failed: {why}")
@@ -299,11 +269,11 @@ class Dispatcher:
         started = asyncio.Event()
         # A printer may still show this very name from an earlier print (another database
         # numbered its jobs the same): then only a running print proves the start.
-        shown = self._fleet.sessions.get(printer).live.status.get("print_stats", {})
-        self._starts_seen[printer] = (name, started, shown.get("filename") == name)
+        shown = self._printers.shown(printer)
+        self._starts_seen[printer] = (name, started, shown.filename == name)
         lost = ""
         try:
-            await client.print_start(name)
+            await self._printers.start(printer, name)
         except PrinterUnreachable as exc:
             # It may have started or not: what the printer shows next decides.
             lost = f" (the connection was lost while starting: {exc.message})"
@@ -319,7 +289,7 @@ class Dispatcher:
                 f"{printer} accepted the start but was not printing '{name}' within "
                 f"{self.start_within:g} s{lost}",
             )
-        if _heats(job) and not _target_set(self._fleet.sessions.get(printer).live.status):
+        if _heats(job) and not self._printers.shown(printer).target_set:
             loop_now = asyncio.get_running_loop().time()
             self._warming[printer] = loop_now + self.start_within
         job_id = self._tracker.job_id(name)
@@ -331,39 +301,33 @@ class Dispatcher:
 
     # -- what the printers say ---------------------------------------------------------
 
-    def _hear(self, printer_id: str, event: SessionEvent) -> None:
-        if isinstance(event, StatusSnapshot | ConnectionChanged | KlippyChanged):
+    def _hear(self, printer_id: str, change: Change) -> None:
+        if change == "state":
             self._check_started(printer_id)
             self.wake()
-        elif isinstance(event, StatusDelta):
-            delta = event.delta
-            if "print_stats" in delta or "webhooks" in delta:
-                self._check_started(printer_id)
-                if "state" in delta.get("print_stats", {}) or "webhooks" in delta:
-                    self.wake()
-            if "extruder" in delta or "heater_bed" in delta:
-                self._heaters_changed(printer_id)
+        elif change == "heaters":
+            self._heaters_changed(printer_id)
+        else:  # a fuller spool may let a job refused for want of filament go there
+            self.wake()
 
     def _check_started(self, printer_id: str) -> None:
         expected = self._starts_seen.get(printer_id)
         if expected is None:
             return
         name, started, shown_before = expected
-        live = self._fleet.sessions.get(printer_id).live
-        outcome = seen(live.status, live.klippy_state, live.klippy_message, name)
+        outcome = seen(self._printers.shown(printer_id), name)
         if outcome is not None and not (shown_before and outcome.ended):
             started.set()
 
     def _heaters_changed(self, printer_id: str) -> None:
         if self.heating_budget is None:
             return
-        status = self._fleet.sessions.get(printer_id).live.status
-        if printer_id in self._warming and _target_set(status):
+        shown = self._printers.shown(printer_id)
+        if printer_id in self._warming and shown.target_set:
             del self._warming[printer_id]  # the printer's own heating counts from now on
             self.wake()
-        heating = is_heating(status)
-        if self._heating.get(printer_id) != heating:
-            self._heating[printer_id] = heating
+        if self._heating.get(printer_id) != shown.heating:
+            self._heating[printer_id] = shown.heating
             self.wake()
 
 
@@ -375,9 +339,3 @@ def _heats(job: Job) -> bool:
         for key in ("first_layer_extr_temp", "first_layer_bed_temp")
     )
 
-
-def _target_set(status: Status) -> bool:
-    return any(
-        (finite_number(status.get(heater, {}).get("target")) or 0) > 0
-        for heater in ("extruder", "heater_bed")
-    )

@@ -18,6 +18,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.dispatcher import Dispatcher
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import LIVE, Attempt, Gate, Job, NewJob, PlateVerdict, Requirements
+from kybercore.jobs.printers import FleetPrinters, QueuePrinters
 from kybercore.jobs.rules import PrinterSnapshot, WhyLine, never_printable, why
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker
@@ -37,18 +38,22 @@ class QueueService:
         store: JobStore,
         files: JobFiles,
         *,
+        printers: QueuePrinters | None = None,
         heating_budget: int | None = 3,
         start_within: float = 60.0,
     ) -> None:
-        """``heating_budget``: at most that many printers of one power group heating at
-        once (None: no limit). ``start_within``: seconds a printer has, after accepting a
-        start, to show it printing before the attempt is ``failed_to_start``."""
+        """``printers``: how the queue reaches the fleet's printers (default: this
+        process's sessions, :class:`FleetPrinters`). ``heating_budget``: at most that many
+        printers of one power group heating at once (None: no limit). ``start_within``:
+        seconds a printer has, after accepting a start, to show it printing before the
+        attempt is ``failed_to_start``."""
         self.fleet = fleet
         self.store = store
         self.files = files
-        self.tracker = Tracker(fleet, store, on_ended=self._wake)
+        self.printers = printers or FleetPrinters(fleet)
+        self.tracker = Tracker(self.printers, store, on_ended=self._wake)
         self.dispatcher = Dispatcher(
-            fleet,
+            self.printers,
             store,
             files,
             self.tracker,
@@ -121,7 +126,7 @@ class QueueService:
         self, printer_id: str, path: str, **options: Any
     ) -> Job:
         """Queue a file already on a printer (downloaded once, then stored here)."""
-        content = await self.fleet.client(printer_id).download(path)
+        content = await self.printers.download(printer_id, path)
         return await self.add_job(path.rsplit("/", 1)[-1], content, **options)
 
     async def jobs(self, include_finished: bool = False) -> list[Job]:
@@ -174,13 +179,9 @@ class QueueService:
         if not attempt.live:
             return
         try:
-            printer = self.fleet.sessions.get(attempt.printer)
-            stats = printer.live.status.get("print_stats", {})
-            if stats.get("filename") == attempt.upload_name and stats.get("state") in (
-                "printing",
-                "paused",
-            ):
-                await self.fleet.client(attempt.printer).print_cancel()
+            shown = self.printers.shown(attempt.printer)
+            if shown.filename == attempt.upload_name and shown.state in ("printing", "paused"):
+                await self.printers.cancel(attempt.printer)
         except KyberCoreError as exc:
             log.warning("%s: could not cancel the job's print: %s", attempt.printer, exc)
         if attempt.state not in ("printing", "paused"):

@@ -25,28 +25,13 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from kybercore.core.numbers import finite_number
-from kybercore.errors import ActionRejected, KyberCoreError, MoonrakerRpcError, PrinterError
-from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import Interest
+from kybercore.errors import ActionRejected, KyberCoreError
 from kybercore.jobs.models import Attempt, AttemptState
+from kybercore.jobs.printers import Change, QueuePrinters, Shown
 from kybercore.jobs.store import JobStore
-from kybercore.moonraker.client import MoonrakerClient
-from kybercore.moonraker.events import (
-    KlippyChanged,
-    Notification,
-    SessionEvent,
-    StatusDelta,
-    StatusSnapshot,
-)
-from kybercore.moonraker.objects import Status
 
 log = logging.getLogger(__name__)
 
-# The deltas _news() can find news in; the fleet need not call _hear with the others.
-_INTEREST: Final = Interest({"print_stats": frozenset({"state", "filename"}), "webhooks": None})
-
-HISTORY_WINDOW: Final = 50
-"""Jobs of Moonraker's history searched (newest first) for an attempt's upload name."""
 RESTARTED: Final = "KyberCore restarted before the start was confirmed"
 NOT_STARTING: Final = frozenset({"pending", "uploading"})
 """Live states in which no start was sent to the printer yet."""
@@ -66,23 +51,20 @@ class Outcome:
         return self.state not in ("printing", "paused")
 
 
-def seen(
-    status: Status, klippy_state: str, klippy_message: str, upload_name: str
-) -> Outcome | None:
-    """What the printer's live state says about the print of ``upload_name``; None when it
-    does not show that print (another file, none, or Klippy not there to tell)."""
-    stats = status.get("print_stats", {})
-    if stats.get("filename") != upload_name or klippy_state not in ("ready", "shutdown"):
+def seen(shown: Shown, upload_name: str) -> Outcome | None:
+    """What the printer shows about the print of ``upload_name``; None when it does not
+    show that print (another file, none, or Klippy not there to tell)."""
+    if shown.filename != upload_name or shown.klippy_state not in ("ready", "shutdown"):
         return None
-    state = stats.get("state")
-    seconds = finite_number(stats.get("print_duration"))
-    message = str(stats.get("message") or "")
-    if state in ("printing", "paused", "error") and klippy_state == "shutdown":
-        why = str(status.get("webhooks", {}).get("state_message") or klippy_message).strip()
+    state, seconds, message = shown.state, shown.print_duration, shown.message
+    if state in ("printing", "paused", "error") and shown.klippy_state == "shutdown":
+        why = shown.klippy_message.strip()
         why = why.splitlines()[0] if why else message or "no message"
         return Outcome("failed", f"Klipper shut down mid-print: {why}", seconds)
-    if state in ("printing", "paused"):
-        return Outcome(state)
+    if state == "printing":
+        return Outcome("printing")
+    if state == "paused":
+        return Outcome("paused")
     if state == "complete":
         return Outcome("completed", print_seconds=seconds)
     if state == "cancelled":
@@ -118,10 +100,10 @@ class Tracker:
     """Follows the queue's attempts on the printers and settles how they end."""
 
     def __init__(
-        self, fleet: FleetService, store: JobStore, *, on_ended: Callable[[], None]
+        self, printers: QueuePrinters, store: JobStore, *, on_ended: Callable[[], None]
     ) -> None:
         """``on_ended`` is called after an attempt ended (a printer may be free)."""
-        self._fleet = fleet
+        self._printers = printers
         self._store = store
         self._on_ended = on_ended
         self._live: dict[str, Attempt] = {}
@@ -132,22 +114,25 @@ class Tracker:
         """Moonraker history job ids heard in ``notify_history_changed``, by file name."""
         self._settling: dict[str, asyncio.Task[None]] = {}
         self._again: set[str] = set()
-        self._stop_listening: Callable[[], None] | None = None
+        self._stop_listening: list[Callable[[], None]] = []
 
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:
         """Load every unresolved attempt and settle each printer that can already tell."""
-        self._stop_listening = self._fleet.listen(self._hear, _INTEREST)
+        self._stop_listening = [
+            self._printers.listen(self._hear),
+            self._printers.listen_history(self._heard_history),
+        ]
         for attempt in await self._store.attempts(live_only=True):
             self._live[attempt.printer] = attempt
         self.check_all()
 
     async def stop(self) -> None:
         """Stop listening and settling (unresolved attempts stay in the store)."""
-        if self._stop_listening is not None:
-            self._stop_listening()
-            self._stop_listening = None
+        for stop in self._stop_listening:
+            stop()
+        self._stop_listening = []
         tasks = list(self._settling.values())
         for task in tasks:
             task.cancel()
@@ -180,27 +165,15 @@ class Tracker:
 
     # -- events ------------------------------------------------------------------------
 
-    def _hear(self, printer_id: str, event: SessionEvent) -> None:
-        if isinstance(event, Notification) and event.method == "notify_history_changed":
-            self._heard_history(printer_id, event.params)
-            return
-        if printer_id not in self._live:
-            return
-        if isinstance(event, StatusSnapshot | KlippyChanged) or (
-            isinstance(event, StatusDelta) and _news(event.delta)
-        ):
+    def _hear(self, printer_id: str, change: Change) -> None:
+        if change == "state" and printer_id in self._live:
             self.kick(printer_id)
 
-    def _heard_history(self, printer_id: str, params: list[Any]) -> None:
-        change = params[0] if params and isinstance(params[0], dict) else {}
-        job = change.get("job")
-        if not isinstance(job, dict) or not isinstance(job.get("filename"), str):
-            return
+    def _heard_history(self, printer_id: str, filename: str, job_id: str) -> None:
         attempt = self._live.get(printer_id)
-        if attempt is None or job["filename"] != attempt.upload_name:
+        if attempt is None or filename != attempt.upload_name:
             return
-        if isinstance(job.get("job_id"), str):
-            self._job_ids[attempt.upload_name] = job["job_id"]
+        self._job_ids[filename] = job_id
         self.kick(printer_id)  # added: bind it; finished: settle it
 
     def kick(self, printer_id: str) -> None:
@@ -243,20 +216,19 @@ class Tracker:
             await self._end(attempt, Outcome("failed_to_start", RESTARTED))
             return
         try:
-            printer = self._fleet.sessions.get(printer_id)
+            shown = self._printers.shown(printer_id)
         except KyberCoreError:
             return  # removed from printers.json: kept until it comes back
-        live = printer.live
-        if live.connection != "online" or live.klippy_state not in ("ready", "shutdown"):
+        if shown.connection != "online" or shown.klippy_state not in ("ready", "shutdown"):
             return  # the next snapshot tells
-        outcome = seen(live.status, live.klippy_state, live.klippy_message, attempt.upload_name)
+        outcome = seen(shown, attempt.upload_name)
         job_id = attempt.moonraker_job_id or self._job_ids.get(attempt.upload_name)
-        if printer.client is not None and (outcome is None or (outcome.ended and not job_id)):
+        if outcome is None or (outcome.ended and not job_id):
             # Not shown: how did it end? Or ended unbound (its start was heard by an
             # earlier process): which history job was it?
             try:
-                job = await self._history_job(printer.client, attempt.upload_name, job_id)
-            except PrinterError:
+                job = await self._printers.history_job(printer_id, attempt.upload_name, job_id)
+            except KyberCoreError:
                 if outcome is None:
                     raise
                 job = None
@@ -313,28 +285,3 @@ class Tracker:
         if self._live.get(attempt.printer, attempt).id == attempt.id:
             self._live.pop(attempt.printer, None)
         self._job_ids.pop(attempt.upload_name, None)
-
-    async def _history_job(
-        self, client: MoonrakerClient, upload_name: str, job_id: str | None
-    ) -> dict[str, Any] | None:
-        """Moonraker's history job of ``upload_name``: by id when bound, else the newest
-        one of that name (upload names are unique per attempt)."""
-        if job_id:
-            try:
-                return await client.history_job(job_id)
-            except MoonrakerRpcError as exc:
-                if exc.rpc_code != 404:
-                    raise
-        listing = await client.history_list(HISTORY_WINDOW)
-        jobs = listing.get("jobs")
-        for job in jobs if isinstance(jobs, list) else []:
-            if isinstance(job, dict) and job.get("filename") == upload_name:
-                return job
-        return None
-
-
-def _news(delta: Status) -> bool:
-    """Whether a status update can change how a print stands: its state or file, or
-    Klippy's (``print_duration`` and the like change four times a second, and say nothing)."""
-    stats = delta.get("print_stats", {})
-    return "state" in stats or "filename" in stats or "webhooks" in delta
