@@ -4,43 +4,18 @@ fixtures), so a front answers /api/history and /api/stats as ``serve`` does."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
-import pytest
 
 from kybercore.sim.stack import PrinterStack
-from tests.db.postgres import PostgresServer, PostgresUnavailable
 from tests.helpers import travel_gcode, wait_until
-from tests.jobs.conftest import postgres_server, unavailable
-from tests.scale.cluster import Cluster, fresh_cluster
-
-__all__ = ["postgres_server"]
+from tests.scale.cluster import Cluster
 
 SHORT = travel_gcode(moves=4, feedrate=6000)
 """Homing plus 2 s of moves, no heating."""
 PRINT_WITHIN = 120.0
 """A short print ends in ~5 s on an idle machine."""
-
-
-@pytest.fixture
-def shared_database(postgres_server: PostgresServer | PostgresUnavailable) -> Iterator[str]:
-    if isinstance(postgres_server, PostgresUnavailable):
-        unavailable(str(postgres_server))
-        raise AssertionError("unreachable")
-    url = postgres_server.create_database()
-    yield url
-    postgres_server.recycle(url)
-
-
-@pytest.fixture
-def cluster(
-    fleet_stacks: list[PrinterStack], tmp_path: Path, shared_database: str
-) -> Iterator[Cluster]:
-    with fresh_cluster(fleet_stacks, tmp_path, shared_database) as started:
-        yield started
 
 
 def front_get(cluster: Cluster, path: str, **params: Any) -> Any:
@@ -50,8 +25,9 @@ def front_get(cluster: Cluster, path: str, **params: Any) -> Any:
 
 
 def test_a_print_through_a_front_reaches_its_history_and_statistics(
-    cluster: Cluster, fleet_stacks: list[PrinterStack]
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack]
 ) -> None:
+    cluster = shared_cluster
     stack = fleet_stacks[1]
     printer = stack.options.name
     upload = httpx.post(

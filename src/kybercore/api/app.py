@@ -37,13 +37,14 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator, Callable, Coroutine, Mapping
-from contextlib import asynccontextmanager
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import httpx
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
+from sqlalchemy.ext.asyncio import AsyncEngine
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from kybercore import __version__
@@ -82,6 +83,7 @@ from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.files import JobFiles
+from kybercore.jobs.printers import QueuePrinters
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
@@ -96,10 +98,25 @@ MAX_UPLOAD_BYTES: Final = 512 * 1024 * 1024
 
 OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
 """Work to run once the fleet and the queue are up (``kybercore demo`` queues its jobs)."""
-FleetFactory = Callable[[httpx.AsyncClient], FleetService]
-"""Makes the app's fleet instead of a :class:`FleetService` over printers.json: a front
-on NATS passes its own (printers held by workers); the queue, the ledger and the
-notifications then do not run in this process."""
+
+
+class Front(Protocol):
+    """How a front on NATS (``kybercore front``, :mod:`kybercore.scale`) holds the fleet
+    and the queue: its printers are held by workers, the queue's database is shared with
+    the other fronts, and the ledger is written by the workers. The notifications do not
+    run on a front."""
+
+    def fleet(self, http: httpx.AsyncClient) -> FleetService:
+        """The fleet as this front follows it."""
+
+    def queue_printers(self, fleet: FleetService) -> QueuePrinters:
+        """The printers as the queue reaches them from this front."""
+
+    def serving(
+        self, fleet: FleetService, queue: QueueService
+    ) -> AbstractAsyncContextManager[None]:
+        """While the app serves: share the queue's changes with the other fronts and
+        dispatch whenever this front holds the dispatcher role."""
 
 
 def create_app(
@@ -111,14 +128,14 @@ def create_app(
     queue_options: Mapping[str, Any] | None = None,
     notify_options: Mapping[str, Any] | None = None,
     on_started: OnStarted | None = None,
-    fleet_factory: FleetFactory | None = None,
+    front: Front | None = None,
     **service_options: Any,
 ) -> FastAPI:
     """The KyberCore ASGI app for the fleet in ``registry``: open access and loopback names
     (plus any IP address) unless told; the queue's database at ``database_url`` (default:
     SQLite beside printers.json); ``queue_options`` go to :class:`QueueService`,
     ``notify_options`` to :class:`NotifyService` and ``service_options`` to
-    :class:`FleetService`; ``fleet_factory``: see :data:`FleetFactory`."""
+    :class:`FleetService`; ``front``: this process is a front on NATS (see :class:`Front`)."""
     folder = registry.path.parent
 
     @asynccontextmanager
@@ -128,8 +145,8 @@ def create_app(
         app.state.audit = AuditLog(engine)
         try:
             async with new_http_client() as http:
-                if fleet_factory is not None:
-                    async with _fleet_only(app, fleet_factory(http)):
+                if front is not None:
+                    async with _front(app, front, http, folder, engine, queue_options):
                         yield
                     return
                 service = FleetService(registry, http, **service_options)
@@ -201,10 +218,24 @@ def create_app(
 
 
 @asynccontextmanager
-async def _fleet_only(app: FastAPI, service: FleetService) -> AsyncIterator[None]:
+async def _front(
+    app: FastAPI,
+    front: Front,
+    http: httpx.AsyncClient,
+    folder: Path,
+    engine: AsyncEngine,
+    queue_options: Mapping[str, Any] | None,
+) -> AsyncIterator[None]:
+    service = front.fleet(http)
+    queue = QueueService(
+        service, JobStore(engine), JobFiles(folder / "files"),
+        printers=front.queue_printers(service), **(queue_options or {}),
+    )  # fmt: skip
     await service.start()
     app.state.service = service
+    app.state.queue = queue
     try:
-        yield
+        async with front.serving(service, queue):
+            yield
     finally:
         await service.stop()

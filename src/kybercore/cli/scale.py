@@ -118,17 +118,30 @@ def front(
     allowed_host: AllowedHosts = None,
     database_url: DatabaseUrl = None,
     slots: Slots = 64,
+    front_id: Annotated[
+        str | None,
+        typer.Option("--front-id", help="This front's name (default: host name and PID)."),
+    ] = None,
+    lease_ttl: Annotated[
+        float,
+        typer.Option(
+            min=1.0, help="Seconds the dispatcher role lasts without renewal (one front "
+            "dispatches the queue; another takes over within about this)."
+        ),
+    ] = 6.0,
     log_level: LogLevel = "info",
 ) -> None:
-    """Serve the dashboard and API for a fleet held by ingest workers on NATS (no printer
-    sockets here). printers.json is imported into an empty registry on NATS."""
+    """Serve the dashboard, the API and the job queue for a fleet held by ingest workers on
+    NATS (no printer sockets here). printers.json is imported into an empty registry on
+    NATS. Several fronts share one database (--database-url, PostgreSQL); one of them
+    dispatches the queue at a time."""
     import uvicorn
 
     from kybercore.api.app import create_app
     from kybercore.cli.serve import _access, _allowed_hosts, _default_database
     from kybercore.registry.store import PrinterRegistry, default_printers_path
     from kybercore.scale.broker import reachable
-    from kybercore.scale.front import FrontFleet
+    from kybercore.scale.front_queue import Front
     from kybercore.sim.stack import ensure_port_free
 
     path = printers_file or default_printers_path()
@@ -148,7 +161,9 @@ def front(
         access,
         allowed_hosts=hosts,
         database_url=database_url or _default_database(path),
-        fleet_factory=lambda http: FrontFleet(nats_url, http, slots=slots, printers_file=path),
+        front=Front(
+            nats_url, slots, path, front_id or f"{socket.gethostname()}-{os.getpid()}", lease_ttl
+        ),
     )
     uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets-sansio")
 

@@ -60,7 +60,7 @@ class QueueService:
             heating_budget=heating_budget,
             start_within=start_within,
         )
-        store.listen(self._changed)
+        store.listen(self.changed)
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -77,9 +77,10 @@ class QueueService:
     def _wake(self) -> None:
         self.dispatcher.wake()
 
-    def _changed(self, kind: str, payload: dict[str, Any]) -> None:
-        """The store committed a change: tell the browsers, and plan again unless it was
-        a start moving on (the dispatcher makes those, and frees nothing by them)."""
+    def changed(self, kind: str, payload: dict[str, Any]) -> None:
+        """The store committed a change (on NATS: here or in another front): tell the
+        browsers, and plan again unless it was a start moving on (the dispatcher makes
+        those, and frees nothing by them)."""
         self.fleet.hub.event({"type": "queue", "kind": kind, **payload})
         if payload.get("event") not in _STARTS_MOVING_ON:
             self.dispatcher.wake()

@@ -127,6 +127,11 @@ class FrontFleet(FleetService):
         assert self._connection is not None, "start() first"
         return self._connection
 
+    @property
+    def nc(self) -> Client:
+        """The front's NATS connection (once started)."""
+        return self._nc
+
     # -- following -----------------------------------------------------------------------
 
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
