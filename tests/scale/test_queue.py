@@ -14,7 +14,7 @@ from nats.errors import ConnectionClosedError
 
 from kybercore.core.view import LivePrinter, facts, fuse
 from kybercore.errors import OutcomeUnknown, PrinterUnreachable, UnknownPrinter
-from kybercore.jobs.printers import Change, shown_of
+from kybercore.jobs.printers import Change, QueuePrinters, shown_of
 from kybercore.registry.models import PrinterConfig
 from kybercore.scale.front import FrontFleet
 from kybercore.scale.queue import FrontPrinters, changes_of, shown_of_view
@@ -144,7 +144,7 @@ def snapshot(fleet: FrontFleet, printer_id: str, live: LivePrinter, now: float =
 
 
 async def test_every_printer_is_planned_from_its_view(fleet: FrontFleet) -> None:
-    printers = FrontPrinters(fleet)
+    printers: QueuePrinters = FrontPrinters(fleet)
     snapshot(fleet, "p1", online())
     found = {p.config.id: p for p in printers.all()}
     assert set(found) == {"p1", "p2"}
