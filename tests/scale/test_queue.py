@@ -59,6 +59,7 @@ def online(**changes: Any) -> LivePrinter:
         ({"extruder": {"temperature": 180.0}}, ["heaters"]),
         ({"bed": {"target": 0.0}, "job": {"progress": 0.5}}, ["heaters"]),
         ({"spool": {"remaining_g": 80.0}}, ["spool"]),
+        ({"spoolman": "unreachable"}, ["spool"]),
         (
             {"job": {"state": "printing"}, "extruder": {"target": 200.0}, "spool": None},
             ["state", "heaters", "spool"],

@@ -58,7 +58,7 @@ def changes_of(patch: Mapping[str, Any] | None) -> list[Change]:
         found.append("state")
     if "extruder" in patch or "bed" in patch:
         found.append("heaters")
-    if "spool" in patch:
+    if "spool" in patch or "spoolman" in patch:  # the spool, or Spoolman's state
         found.append("spool")
     return found
 
