@@ -167,3 +167,41 @@ async def leave_idle(front: FrontFleet, printer: str, name: str) -> None:
         )
     await front.act(printer, "gcode", {"script": "SDCARD_RESET_FILE"})
     await front.delete_file(printer, name)
+
+
+async def test_a_print_klipper_shut_down_is_found_in_the_history(
+    front: FrontFleet, fleet_stacks: list[PrinterStack], tmp_path: Path
+) -> None:
+    # What the tracker has on a front when Klippy shuts down mid-print: the view blanks the
+    # job's state while Klippy is not ready, and Moonraker's history tells how it ended.
+    printers = FrontPrinters(front)
+    printer = "fleet-c"
+    name = f"kybercore/front-{uuid.uuid4().hex[:8]}.gcode"
+    source = tmp_path / "part.gcode"
+    source.write_bytes(travel_gcode())
+    try:
+        await printers.upload(printer, name, source)
+        await printers.start(printer, name)
+        await wait_for(
+            lambda: printers.shown(printer).state == "printing", PRINTS_WITHIN, "printing"
+        )
+        await front.act(printer, "emergency_stop")
+        await wait_for(
+            lambda: printers.shown(printer).klippy_state == "shutdown", 30, "Klippy shut down"
+        )
+        shown = printers.shown(printer)
+        assert (shown.filename, shown.state) == (name, "")
+        assert shown.klippy_message
+
+        async def recorded() -> bool:
+            job = await printers.history_job(printer, name, None)
+            return job is not None and job["status"] == "klippy_shutdown"
+
+        await wait_for(recorded, 30, "Moonraker's history recording the shutdown")
+    finally:
+        if printers.shown(printer).klippy_state != "ready":
+            await front.act(printer, "firmware_restart")
+            await wait_for(
+                lambda: printers.shown(printer).klippy_state == "ready", 60, "ready again"
+            )
+        await front.delete_file(printer, name)
