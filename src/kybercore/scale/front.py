@@ -15,6 +15,8 @@ printers held by workers:
   macros, the temperature graph, a file's thumbnail, the webcam list and a webcam's
   snapshot (images in base64, refused with ``too_large_for_front`` above
   :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them).
+- the job queue's printers (:mod:`.queue`) are read from these views (:meth:`FrontFleet.watch`
+  tells of each change), and what the queue does on a printer goes to its owner as commands.
 
 What a front does not do yet: a webcam's live MJPEG stream, which answers 409
 ``not_on_front`` naming what to use instead. A stream is endless, so it does not fit one
