@@ -55,8 +55,9 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
     # Scale-out on NATS: leases, and the ingest and front roles over the fleet. A worker
-    # is a process's composition root, as api/app.py is: it runs the ledger of its printers;
-    # a front runs the job queue (its printers reached by command).
+    # is a process's composition root, as api/app.py is: it runs the ledger of its printers.
+    # A front runs the job queue through jobs.printers' protocol (scale/queue.py), and
+    # owners do its work with jobs.printers' in-process implementation (scale/ops.py).
     "scale": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
         "kybercore.moonraker", "kybercore.registry", "kybercore.ledger", "kybercore.jobs",

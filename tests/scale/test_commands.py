@@ -10,7 +10,7 @@ from typing import Any
 from nats.errors import MaxPayloadError
 
 from kybercore.api.errors import error_status
-from kybercore.errors import ActionRejected, KyberCoreError
+from kybercore.errors import ActionRejected, KyberCoreError, MoonrakerRpcError
 from kybercore.fleet.images import Image
 from kybercore.scale.commands import CommandRunner
 from kybercore.scale.wire import MAX_IMAGE, decode_error, decode_image, dumps, loads
@@ -42,12 +42,40 @@ class FakeService:
     def __init__(self, files: int = 3, image: int = 100) -> None:
         self._files = files
         self._image = image
+        self.moonraker = FakeClient()
+
+    def client(self, printer_id: str) -> FakeClient:
+        return self.moonraker
 
     async def files(self, printer_id: str) -> list[dict[str, Any]]:
         return [{"path": f"part-{i:06d}.gcode", "size": i} for i in range(self._files)]
 
     async def thumbnail(self, printer_id: str, path: str) -> Image:
         return Image(b"\x89PNG" + b"\0" * (self._image - 4), "image/png")
+
+
+class FakeClient:
+    """Fake: the Moonraker calls of the queue's ops, recorded; a history of two jobs."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, ...]] = []
+        self.jobs = [{"job_id": "000002", "filename": "b.gcode"}, {"job_id": "000001",
+                     "filename": "a.gcode"}]  # fmt: skip
+
+    async def print_start(self, name: str) -> None:
+        self.calls.append(("print_start", name))
+
+    async def print_cancel(self) -> None:
+        self.calls.append(("print_cancel",))
+
+    async def history_job(self, job_id: str) -> dict[str, Any]:
+        found = [job for job in self.jobs if job["job_id"] == job_id]
+        if not found:
+            raise MoonrakerRpcError(404, f"job {job_id} not found", printer="p1")
+        return found[0]
+
+    async def history_list(self, limit: int) -> dict[str, Any]:
+        return {"count": len(self.jobs), "jobs": self.jobs[:limit]}
 
 
 async def run(service: FakeService, op: str, **args: Any) -> dict[str, Any]:
@@ -86,3 +114,15 @@ async def test_an_unknown_op_says_the_worker_is_older() -> None:
     error = decode_error((await run(FakeService(), "fly"))["error"])
     assert type(error) is KyberCoreError
     assert "older than its front" in error.message
+
+
+async def test_the_queues_ops_start_cancel_and_find_history_jobs() -> None:
+    service = FakeService()
+    assert await run(service, "print_start", name="kybercore/j1-a.gcode") == {"ok": None}
+    assert await run(service, "print_cancel") == {"ok": None}
+    assert service.moonraker.calls == [("print_start", "kybercore/j1-a.gcode"), ("print_cancel",)]
+    by_id = await run(service, "history_job", upload_name="a.gcode", job_id="000002")
+    assert by_id["ok"]["filename"] == "b.gcode"  # the id decides when it is bound
+    by_name = await run(service, "history_job", upload_name="a.gcode", job_id="000009")
+    assert by_name["ok"]["job_id"] == "000001"  # an unknown id: looked up by name
+    assert (await run(service, "history_job", upload_name="z.gcode", job_id=None)) == {"ok": None}

@@ -304,6 +304,9 @@ class Toolhead(BaseModel):
 
     position: list[float] | None
     homed_axes: str
+    axis_minimum: list[float] | None = Field(
+        default=None, description="Klipper's lowest X, Y and Z position (position_min)."
+    )
 
 
 class SpoolOut(BaseModel):

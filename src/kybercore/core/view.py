@@ -143,17 +143,13 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
     """The inputs of :mod:`kybercore.core.validation` for this printer."""
     caps = capabilities(config, live)
     volume = caps.get("build_volume")
-    toolhead = live.status.get("toolhead", {})
-    minimum = toolhead.get("axis_minimum")
     return PrinterFacts(
         connection=live.connection,
         klippy_state=live.klippy_state,
         print_state=str(live.status.get("print_stats", {}).get("state", "")),
         model=config.model,
         build_volume=(volume["x"], volume["y"], volume["z"]) if volume else None,
-        axis_minimum=tuple(minimum[:3])
-        if isinstance(minimum, list) and len(minimum) >= 3
-        else None,
+        axis_minimum=axis_minimum(live.status.get("toolhead", {})),
         nozzle_diameter=caps.get("nozzle_diameter"),
         # The spool on the printer says what is loaded better than printers.json.
         material=(live.spool.material if live.spool and live.spool.material else None)
@@ -163,6 +159,47 @@ def facts(config: PrinterConfig, live: LivePrinter) -> PrinterFacts:
         limits=limits_state(config, live),
         filament_left_g=live.spool.remaining_g if live.spool else None,
     )
+
+
+def facts_of_view(config: PrinterConfig, view: Mapping[str, Any]) -> PrinterFacts:
+    """The inputs of :mod:`kybercore.core.validation`, read back from the printer's fused
+    view: what :func:`facts` gives for the live state the view was fused from, for a
+    process that has the views but not the live state (a front on NATS).
+
+    One field differs: ``print_state`` is the view's ``job.state``, which :func:`fuse`
+    blanks while Klippy is not ready, where :func:`facts` keeps ``print_stats.state``.
+    Validation gives the same verdicts either way: it reads the print state only once
+    Klippy is ready (not ready blocks every action but e-stop and the restarts first).
+    """
+    caps: Mapping[str, Any] = view.get("capabilities") or {}
+    volume = caps.get("build_volume")
+    spool: Mapping[str, Any] = view.get("spool") or {}
+    minimum = (view.get("toolhead") or {}).get("axis_minimum")
+    return PrinterFacts(
+        connection=str(view.get("connection", "")),
+        klippy_state=str(view.get("klippy_state", "")),
+        print_state=str((view.get("job") or {}).get("state", "")),
+        model=config.model,
+        build_volume=(volume["x"], volume["y"], volume["z"]) if volume else None,
+        axis_minimum=axis_minimum({"axis_minimum": minimum}),
+        nozzle_diameter=caps.get("nozzle_diameter"),
+        # As facts(): the spool on the printer says what is loaded better than printers.json.
+        material=spool.get("material") or caps.get("material"),
+        max_extruder_temp=caps.get("max_extruder_temp"),
+        max_bed_temp=caps.get("max_bed_temp"),
+        limits=str(view.get("limits", "unknown")),
+        filament_left_g=spool.get("remaining_g") if spool else None,
+    )
+
+
+def axis_minimum(toolhead: Mapping[str, Any]) -> tuple[float, float, float] | None:
+    """Klipper's ``toolhead.axis_minimum`` for X, Y and Z; None unless all three are
+    numbers (a peer's junk must not reach validation's arithmetic)."""
+    minimum = toolhead.get("axis_minimum")
+    if not isinstance(minimum, list) or len(minimum) < 3:
+        return None
+    x, y, z = (finite_number(v) for v in minimum[:3])
+    return None if x is None or y is None or z is None else (x, y, z)
 
 
 def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> View:
@@ -219,6 +256,8 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
         toolhead={
             "position": [round(float(v), 2) for v in position[:4]] if position else None,
             "homed_axes": str(toolhead.get("homed_axes") or ""),
+            # For validation's moves check where only the view is known (facts_of_view).
+            "axis_minimum": list(minimum) if (minimum := axis_minimum(toolhead)) else None,
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
         speed_factor=_num(gcode_move.get("speed_factor"), 2),

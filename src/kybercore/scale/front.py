@@ -15,6 +15,8 @@ printers held by workers:
   macros, the temperature graph, a file's thumbnail, the webcam list and a webcam's
   snapshot (images in base64, refused with ``too_large_for_front`` above
   :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them).
+- the job queue's printers (:mod:`.queue`) are read from these views (:meth:`FrontFleet.watch`
+  tells of each change), and what the queue does on a printer goes to its owner as commands.
 
 What a front does not do yet: a webcam's live MJPEG stream, which answers 409
 ``not_on_front`` naming what to use instead. A stream is endless, so it does not fit one
@@ -26,7 +28,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Callable, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO, Final
 
@@ -71,6 +73,11 @@ log = logging.getLogger(__name__)
 CHECK_SECONDS: Final = 0.25
 SNAPSHOT_TIMEOUT: Final = 2.0
 
+Watcher = Callable[[str, dict[str, Any] | None], None]
+"""Told ``(printer id, patch)`` for each patch applied to a printer's view, and
+``(printer id, None)`` when its whole view may have changed (a snapshot, its slot going
+stale or fresh, a registry change, its removal)."""
+
 
 class FrontFleet(FleetService):
     """The fleet on NATS, seen from a front; see the module docstring."""
@@ -92,7 +99,8 @@ class FrontFleet(FleetService):
         self._printers_file = printers_file
         self.kv = KvRegistry()
         self._configs: dict[str, PrinterConfig] = {}
-        self.copy = FleetCopy(slots, self.hub.mark, self._patched, self.hub.event)
+        self._watchers: tuple[Watcher, ...] = ()
+        self.copy = FleetCopy(slots, self._changed, self._patched, self.hub.event)
         self._asking: set[int] = set()
         self._tasks: list[asyncio.Task[Any]] = []
 
@@ -138,7 +146,7 @@ class FrontFleet(FleetService):
         before = set(self._configs)
         self._configs = {p.id: p for p in printers}
         for printer_id in before | set(self._configs):
-            self.hub.mark(printer_id)
+            self._changed(printer_id)
 
     async def _on_batch(self, msg: Msg) -> None:
         slot = int(msg.subject.split(".")[2])
@@ -177,8 +185,34 @@ class FrontFleet(FleetService):
         slot = slot_of(printer_id, self._slots)
         if printer_id in self._configs and not self.copy.is_stale(slot):
             self.hub.patched(printer_id, view, patch)
+            self._tell(printer_id, patch)
         else:
-            self.hub.mark(printer_id)
+            self._changed(printer_id)
+
+    def _changed(self, printer_id: str) -> None:
+        """The printer's view may have changed as a whole: render it again."""
+        self.hub.mark(printer_id)
+        self._tell(printer_id, None)
+
+    def watch(self, watcher: Watcher) -> Callable[[], None]:
+        """Tell ``watcher`` of every change to a view (see :data:`Watcher`), from the
+        event loop, as it is applied; returns the way to stop. It runs for every patch:
+        it must be quick, and must not raise (what it raises is logged)."""
+        self._watchers = (*self._watchers, watcher)
+
+        def unwatch() -> None:
+            self._watchers = tuple(w for w in self._watchers if w is not watcher)
+
+        return unwatch
+
+    def _tell(self, printer_id: str, patch: dict[str, Any] | None) -> None:
+        # A tuple replaced on (un)watch: a watcher may stop watching while being told.
+        for watcher in self._watchers:
+            try:
+                watcher(printer_id, patch)
+            except Exception:
+                # One watcher's bug must not stop the views from following the workers.
+                log.exception("front: a watcher of %s failed", printer_id)
 
     def _render(self, printer_id: str) -> View | None:
         config = self._configs.get(printer_id)
@@ -196,6 +230,19 @@ class FrontFleet(FleetService):
         return view
 
     # -- reading -------------------------------------------------------------------------
+
+    def configs(self) -> list[PrinterConfig]:
+        """Every printer in the registry bucket, as the front last read it."""
+        return list(self._configs.values())
+
+    def current_view(self, printer_id: str) -> View:
+        """One printer's view as the front knows it now (what the next publish sends):
+        its owner's last view, marked stale when its slot's owner went silent, or one that
+        says connecting when no owner has reported it yet."""
+        view = self._render(printer_id)
+        if view is None:
+            raise UnknownPrinter(printer_id)
+        return view
 
     def view(self, printer_id: str) -> View:
         """One printer's view, as last published."""
@@ -245,7 +292,9 @@ class FrontFleet(FleetService):
 
     # -- commands ------------------------------------------------------------------------
 
-    async def _command(self, printer_id: str, op: str, **args: Any) -> Any:
+    async def command(self, printer_id: str, op: str, **args: Any) -> Any:
+        """Run the command ``op`` (:mod:`.ops`) on the printer's owner, with the slot epoch
+        the front knows; its result (see :func:`~kybercore.scale.commands.send_command`)."""
         self.config(printer_id)
         epoch = self.copy.slots[slot_of(printer_id, self._slots)].epoch
         return await send_command(self._nc, printer_id, op, args, epoch=epoch)
@@ -259,7 +308,7 @@ class FrontFleet(FleetService):
     ) -> Verdict:
         """What would happen, judged by the printer's owner against its live state."""
         params = dict(params or {})
-        body = await self._command(printer_id, "dry_run", action=action, params=params, force=force)
+        body = await self.command(printer_id, "dry_run", action=action, params=params, force=force)
         return decode_verdict(body)
 
     async def act(
@@ -272,7 +321,7 @@ class FrontFleet(FleetService):
         confirm: bool = False,
     ) -> ActionOutcome:
         """Run ``action`` on the printer's owner: validated there, its real outcome here."""
-        body = await self._command(
+        body = await self.command(
             printer_id, "act", action=action, params=dict(params or {}), force=force,
             confirm=confirm,
         )  # fmt: skip
@@ -305,47 +354,45 @@ class FrontFleet(FleetService):
 
     async def files(self, printer_id: str) -> list[dict[str, Any]]:
         """The printer's G-code files, newest first (from its owner)."""
-        found: list[dict[str, Any]] = await self._command(printer_id, "files")
+        found: list[dict[str, Any]] = await self.command(printer_id, "files")
         return found
 
     async def delete_file(self, printer_id: str, path: str) -> None:
         """Delete a G-code file (its owner refuses the one being printed)."""
-        await self._command(printer_id, "delete_file", path=path)
+        await self.command(printer_id, "delete_file", path=path)
 
     async def file_metadata(self, printer_id: str, filename: str) -> dict[str, Any]:
         """Moonraker's metadata of one file (from the printer's owner)."""
-        found: dict[str, Any] = await self._command(printer_id, "file_metadata", filename=filename)
+        found: dict[str, Any] = await self.command(printer_id, "file_metadata", filename=filename)
         return found
 
     async def console_history(self, printer_id: str, count: int) -> list[dict[str, Any]]:
         """The printer's last console entries (from its owner)."""
-        found: list[dict[str, Any]] = await self._command(
-            printer_id, "console_history", count=count
-        )
+        found: list[dict[str, Any]] = await self.command(printer_id, "console_history", count=count)
         return found
 
     # -- reads -----------------------------------------------------------------------------
 
     async def macros(self, printer_id: str) -> list[Macro]:
         """The printer's G-code macros (its owner reads Klipper's configuration)."""
-        return decode_macros(await self._command(printer_id, "macros"))
+        return decode_macros(await self.command(printer_id, "macros"))
 
     async def temperatures(self, printer_id: str, minutes: float) -> dict[str, Series]:
         """The printer's heaters over the last ``minutes`` (from its owner's ring)."""
-        found: dict[str, Series] = await self._command(printer_id, "temperatures", minutes=minutes)
+        found: dict[str, Series] = await self.command(printer_id, "temperatures", minutes=minutes)
         return found
 
     async def thumbnail(self, printer_id: str, path: str) -> Image:
         """An image under the printer's ``gcodes/`` (through its owner)."""
-        return decode_image(await self._command(printer_id, "thumbnail", path=path))
+        return decode_image(await self.command(printer_id, "thumbnail", path=path))
 
     async def cameras(self, printer_id: str) -> list[Webcam]:
         """The printer's enabled webcams (its owner's list)."""
-        return decode_webcams(await self._command(printer_id, "cameras"))
+        return decode_webcams(await self.command(printer_id, "cameras"))
 
     async def camera_snapshot(self, printer_id: str, name: str) -> Image:
         """One JPEG from the webcam ``name`` (through the printer's owner)."""
-        return decode_image(await self._command(printer_id, "camera_snapshot", name=name))
+        return decode_image(await self.command(printer_id, "camera_snapshot", name=name))
 
     async def camera_stream(self, printer_id: str, name: str) -> tuple[str, AsyncIterator[bytes]]:
         """Not on a front: an endless stream does not fit a command and its one answer."""

@@ -14,6 +14,7 @@ from typing import Any, Final
 
 from kybercore.errors import shorten
 from kybercore.fleet.service import FleetService
+from kybercore.jobs.printers import FleetPrinters
 from kybercore.scale.wire import (
     encode_image,
     encode_macros,
@@ -81,6 +82,25 @@ async def _camera_snapshot(service: FleetService, printer_id: str, args: dict[st
     return encode_image(image, f"{printer_id}: the snapshot of webcam '{shorten(name)}'")
 
 
+# The job queue on a front (kybercore.scale.queue): what `kybercore serve`'s queue does
+# through FleetPrinters, done by the owner with the same class over its own sessions.
+
+
+async def _print_start(service: FleetService, printer_id: str, args: dict[str, Any]) -> Any:
+    await FleetPrinters(service).start(printer_id, str(args["name"]))
+
+
+async def _print_cancel(service: FleetService, printer_id: str, args: dict[str, Any]) -> Any:
+    await FleetPrinters(service).cancel(printer_id)
+
+
+async def _history_job(service: FleetService, printer_id: str, args: dict[str, Any]) -> Any:
+    job_id = args.get("job_id")
+    return await FleetPrinters(service).history_job(
+        printer_id, str(args["upload_name"]), str(job_id) if job_id else None
+    )
+
+
 OPS: Final[dict[str, Op]] = {
     "act": _act,
     "dry_run": _dry_run,
@@ -93,5 +113,8 @@ OPS: Final[dict[str, Op]] = {
     "thumbnail": _thumbnail,
     "cameras": _cameras,
     "camera_snapshot": _camera_snapshot,
+    "print_start": _print_start,
+    "print_cancel": _print_cancel,
+    "history_job": _history_job,
 }
 """Every command a worker takes, by ``op``."""
