@@ -93,7 +93,7 @@ def two_workers_and_a_front(
     shared = ("--database-url", database_url) if database_url else ()
     front = KyberCoreServer(
         folder / "printers.json", free_port(), "--nats", broker.url, "--slots", str(SLOTS),
-        *shared, command="front",
+        "--lease-ttl", str(TTL), *shared, command="front",
     )  # fmt: skip
     cluster = Cluster(broker, folder, front, shared)
     try:

@@ -5,13 +5,20 @@ nats-server, workers, front, PostgreSQL, Moonraker and Klippy."""
 
 from __future__ import annotations
 
+import asyncio
+import os
+import shutil
+import signal
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import httpx
 
-from kybercore.sim.stack import PrinterStack
-from tests.helpers import travel_gcode, wait_until
-from tests.scale.cluster import Cluster
+from kybercore.sim.stack import PrinterStack, free_port
+from tests.browser_mirror import BrowserMirror
+from tests.helpers import KyberCoreServer, travel_gcode, wait_until
+from tests.scale.cluster import SLOTS, TTL, Cluster
 
 SHORT = travel_gcode(moves=4, feedrate=6000)
 """Homing plus 2 s of moves, no heating."""
@@ -19,13 +26,18 @@ PRINT_WITHIN = 120.0
 """Dispatch, upload and a ~5 s print on an idle machine; 5× slack and more."""
 
 
-def call(cluster: Cluster, method: str, path: str, **options: Any) -> Any:
-    answer = httpx.request(method, f"{cluster.front.url}{path}", timeout=60, **options)
+TAKEOVER = 5 * (TTL + TTL / 3)
+"""The dispatcher role moves ~TTL + TTL/3 after its holder died; 5× slack."""
+
+
+def call(cluster: Cluster | KyberCoreServer, method: str, path: str, **options: Any) -> Any:
+    front = cluster.front if isinstance(cluster, Cluster) else cluster
+    answer = httpx.request(method, f"{front.url}{path}", timeout=60, **options)
     assert answer.status_code in (200, 201), answer.text
     return answer.json()
 
 
-def gate(cluster: Cluster, printer: str) -> str:
+def gate(cluster: Cluster | KyberCoreServer, printer: str) -> str:
     gates = call(cluster, "GET", "/api/gates")
     state: str = gates.get(printer, {"state": "available"})["state"]
     return state
@@ -65,3 +77,75 @@ def test_a_job_added_on_a_front_prints_on_a_workers_printer_one_cleared_plate_at
     call(cluster, "POST", f"/api/printers/{printer}/clear", json={"verdict": "good"})
     job = call(cluster, "GET", f"/api/jobs/{job_id}")
     assert (job["done"], job["state"]) == (2, "done"), job
+
+
+def second_front(cluster: Cluster, folder: Path, database_url: str) -> KyberCoreServer:
+    """Another front on the same broker and database, with its own disk."""
+    folder.mkdir()
+    shutil.copy(cluster.folder / "printers.json", folder / "printers.json")
+    return KyberCoreServer(
+        folder / "printers.json", free_port(), "--nats", cluster.broker.url,
+        "--slots", str(SLOTS), "--database-url", database_url, "--front-id", "front-b",
+        "--lease-ttl", str(TTL), command="front",
+    )  # fmt: skip
+
+
+async def queue_frames_while(
+    ws_url: str, act: Callable[[], Any], until: Callable[[list[dict[str, Any]]], bool]
+) -> list[dict[str, Any]]:
+    """A browser on ``ws_url``: the queue frames it gets while ``act`` runs, until ``until``."""
+    async with BrowserMirror(ws_url) as browser:
+        await asyncio.to_thread(act)
+        await browser.wait(lambda: until(browser.events("queue")), 60, "the queue's frames")
+        return browser.events("queue")
+
+
+def test_fronts_share_the_queue_and_another_dispatches_when_the_first_dies(
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack], tmp_path: Path,
+    shared_database: str,
+) -> None:  # fmt: skip
+    cluster = shared_cluster
+    printer = fleet_stacks[0].options.name
+    other = second_front(cluster, tmp_path / "front-b", shared_database)
+    other.start()
+    try:
+        # Front A (first up) dispatches; a browser on front B sees every change it makes.
+        added: dict[str, Any] = {}
+
+        def add() -> None:
+            upload = {"file": ("shared.gcode", SHORT)}
+            fields = {"quantity": "2", "printer": printer}
+            added.update(call(cluster, "POST", "/api/jobs", files=upload, data=fields))
+
+        def copy_ended(frames: list[dict[str, Any]]) -> bool:
+            return any(
+                f["kind"] == "attempt"
+        and f["event"] == "attempt_completed"
+        and f["attempt"]["job_id"] == added["id"]
+                for f in frames
+            )
+
+        frames = asyncio.run(queue_frames_while(other.ws_url, add, copy_ended))
+        assert any(f.get("event") == "attempt_reserved" for f in frames), frames
+        job_id = added["id"]
+
+        # Front A dies without a word. Front B takes the role and dispatches copy 2, from
+        # the file front A stored (B has it from the broker, not from a disk).
+        wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 1")
+        assert "took the dispatcher role" in cluster.front.log.read_text()
+        assert "took the dispatcher role" not in other.log.read_text()
+        sha256 = added["file"]["sha256"]
+        on_disk_b = tmp_path / "front-b" / "files" / f"{sha256}.gcode"
+        assert not on_disk_b.exists()
+        os.kill(cluster.front.pid, signal.SIGKILL)
+        call(other, "POST", f"/api/printers/{printer}/clear", json={"verdict": "good"})
+        wait_until(
+            lambda: len(call(other, "GET", f"/api/jobs/{job_id}/attempts")) == 2,
+            TAKEOVER, "copy 2 dispatched by front B",
+        )  # fmt: skip
+        wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 2")
+        tried = call(other, "GET", f"/api/jobs/{job_id}/attempts")
+        assert [(a["copy"], a["state"]) for a in tried] == [(1, "completed"), (2, "completed")]
+        assert on_disk_b.exists()
+    finally:
+        other.stop()

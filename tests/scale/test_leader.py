@@ -104,3 +104,22 @@ async def test_a_holder_that_fails_to_start_hands_the_role_on(contenders: Start)
     a.fail_gain = False
     b = await contenders("front-b")
     await until("someone holds it", lambda: a.running or b.running)
+
+
+async def test_a_contender_given_another_ttl_fences_by_the_buckets(
+    contenders: Start, nats_server: LocalServer
+) -> None:
+    a = await contenders("front-a")
+    nc = await connect(nats_server.url, "front-b")
+
+    async def nothing() -> None:
+        pass
+
+    b = Leadership(nc, "dispatcher", "front-b", ttl=TTL * 2, on_gain=nothing, on_loss=nothing)
+    try:
+        await b.start()
+        # Fencing by its own longer TTL would let it act after the key expired.
+        assert b.ttl == a.leadership.ttl == TTL
+    finally:
+        await b.stop()
+        await nc.close()

@@ -83,7 +83,6 @@ from kybercore.db import default_database_url, open_database
 from kybercore.errors import KyberCoreError
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.files import JobFiles
-from kybercore.jobs.printers import QueuePrinters
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
@@ -109,8 +108,12 @@ class Front(Protocol):
     def fleet(self, http: httpx.AsyncClient) -> FleetService:
         """The fleet as this front follows it."""
 
-    def queue_printers(self, fleet: FleetService) -> QueuePrinters:
-        """The printers as the queue reaches them from this front."""
+    def queue(
+        self, fleet: FleetService, store: JobStore, folder: Path, options: Mapping[str, Any]
+    ) -> QueueService:
+        """The queue as this front serves it (``fleet`` started): its printers reached by
+        command, its files shared with the other fronts; ``options`` as for
+        :class:`QueueService`."""
 
     def serving(
         self, fleet: FleetService, queue: QueueService
@@ -227,14 +230,11 @@ async def _front(
     queue_options: Mapping[str, Any] | None,
 ) -> AsyncIterator[None]:
     service = front.fleet(http)
-    queue = QueueService(
-        service, JobStore(engine), JobFiles(folder / "files"),
-        printers=front.queue_printers(service), **(queue_options or {}),
-    )  # fmt: skip
     await service.start()
-    app.state.service = service
-    app.state.queue = queue
     try:
+        queue = front.queue(service, JobStore(engine), folder / "files", queue_options or {})
+        app.state.service = service
+        app.state.queue = queue
         async with front.serving(service, queue):
             yield
     finally:

@@ -261,7 +261,8 @@ class Dispatcher:
         printer, name = attempt.printer, attempt.upload_name
         attempt = await self._store.advance(attempt.id, "uploading")
         try:
-            await self._printers.upload(printer, name, self._files.path(job.file.sha256))
+            path = await self._files.local(job.file.sha256)
+            await self._printers.upload(printer, name, path)
         except (KyberCoreError, OSError) as exc:
             why = exc.message if isinstance(exc, KyberCoreError) else str(exc)
             return await self._failed_to_start(attempt, f"the upload to {printer} failed: {why}")

@@ -89,6 +89,10 @@ class JobFiles:
         meta = await self.metadata(sha256)
         return JobFile(sha256=sha256, name=name, size=size, meta=meta)
 
+    async def local(self, sha256: str) -> Path:
+        """The stored file on this machine, to be read (reading fails if it is gone)."""
+        return self.path(sha256)
+
     async def open(self, sha256: str) -> BinaryIO:
         """The stored file, open for reading (the caller closes it)."""
         path = self.path(sha256)

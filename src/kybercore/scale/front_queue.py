@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,9 +27,10 @@ from nats.aio.msg import Msg
 from nats.aio.subscription import Subscription
 
 from kybercore.fleet.service import FleetService
-from kybercore.jobs.printers import QueuePrinters
 from kybercore.jobs.service import QueueService
+from kybercore.jobs.store import JobStore
 from kybercore.scale.front import FrontFleet
+from kybercore.scale.jobfiles import SharedJobFiles
 from kybercore.scale.leader import Leadership
 from kybercore.scale.queue import FrontPrinters
 from kybercore.scale.wire import dumps, loads
@@ -58,10 +59,13 @@ class Front:
         """The fleet as this front follows it."""
         return FrontFleet(self.nats_url, http, slots=self.slots, printers_file=self.printers_file)
 
-    def queue_printers(self, fleet: FleetService) -> QueuePrinters:
-        """The printers as the queue reaches them from this front."""
+    def queue(
+        self, fleet: FleetService, store: JobStore, folder: Path, options: Mapping[str, Any]
+    ) -> QueueService:
+        """The queue as this front serves it: printers reached by command, files shared."""
         assert isinstance(fleet, FrontFleet)
-        return FrontPrinters(fleet)
+        files = SharedJobFiles(folder, fleet.nc)
+        return QueueService(fleet, store, files, printers=FrontPrinters(fleet), **options)
 
     @asynccontextmanager
     async def serving(self, fleet: FleetService, queue: QueueService) -> AsyncIterator[None]:

@@ -21,7 +21,12 @@ from collections.abc import Awaitable, Callable
 from typing import Final
 
 from nats.aio.client import Client
-from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError
+from nats.js.errors import (
+    BadRequestError,
+    BucketNotFoundError,
+    KeyNotFoundError,
+    KeyWrongLastSequenceError,
+)
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
@@ -60,9 +65,23 @@ class Leadership:
         )
 
     async def start(self) -> None:
-        """Open (or create) the bucket and start contending."""
+        """Open (or create) the bucket and start contending. The bucket's TTL is the one
+        every contender must fence by: a process configured otherwise follows the bucket."""
         js = self._nc.jetstream()
-        self._kv = await js.create_key_value(bucket=ROLES_BUCKET, ttl=self.ttl, history=1)
+        try:
+            self._kv = await js.key_value(ROLES_BUCKET)
+        except BucketNotFoundError:
+            with contextlib.suppress(BadRequestError):  # another made it meanwhile
+                await js.create_key_value(bucket=ROLES_BUCKET, ttl=self.ttl, history=1)
+            self._kv = await js.key_value(ROLES_BUCKET)
+        ttl = (await self._kv.status()).ttl
+        if ttl and abs(ttl - self.ttl) > 1e-3:
+            log.warning(
+                "%s: the %s role's bucket has a TTL of %g s (this process was given %g s); "
+                "following the bucket's",
+                self.holder, self.role, ttl, self.ttl,
+            )  # fmt: skip
+            self.ttl = ttl
         self._task = asyncio.create_task(self._loop(), name=f"role-{self.role}")
 
     async def stop(self) -> None:
