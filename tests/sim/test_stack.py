@@ -18,8 +18,9 @@ import pytest
 from kybercore.errors import LaunchError
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.sim import stack as stack_module
-from kybercore.sim.demo import demo_fleet, sample_files
+from kybercore.sim.demo import DEMO_JOBS, demo_fleet, sample_files
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
+from tests.helpers import wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -242,3 +243,38 @@ def test_zeroconf_is_written_only_when_asked_for() -> None:
     assert "[zeroconf]" not in stack_module.render_moonraker_conf(*args)
     conf = stack_module.render_moonraker_conf(*args, mdns_hostname="kc-lab")
     assert "\n[zeroconf]\nmdns_hostname: kc-lab\nenable_ssdp: False\n" in conf
+
+
+def test_kybercore_demo_with_workers_dispatches_its_queue_through_a_front(
+    runtimes: None, tmp_path: Path
+) -> None:
+    # The distributed demo: nats-server, 2 ingest workers and a front. A newcomer sees the
+    # same queue as in one process: the demo's jobs queued and dispatched to printers.
+    port = free_port()
+    command = [
+        sys.executable, "-m", "kybercore", "demo", "--workers", "2", "--port", str(port),
+        "--dir", str(tmp_path),
+    ]  # fmt: skip
+    demo = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    api = f"http://127.0.0.1:{port}/api"
+
+    def dispatched() -> bool:
+        assert demo.poll() is None, demo.stdout.read() if demo.stdout else ""
+        try:
+            jobs = httpx.get(f"{api}/jobs", timeout=2).json()
+            attempts = httpx.get(f"{api}/jobs/{jobs[0]['id']}/attempts", timeout=2).json()
+        except (httpx.HTTPError, IndexError, KeyError, TypeError):
+            return False
+        return any(a["state"] in ("printing", "completed") for a in attempts)
+
+    try:
+        # Printers, broker, workers and front start, then the first copy prints: well
+        # within 180 s on an idle machine (about 40 s).
+        wait_until(dispatched, 180, "a demo job printing through the front")
+        jobs = httpx.get(f"{api}/jobs", timeout=5).json()
+        assert len(jobs) == len(DEMO_JOBS)
+    finally:
+        demo.send_signal(signal.SIGINT)
+        output, _ = demo.communicate(timeout=60)
+    assert demo.returncode == 0, output
+    assert "Stopped the dashboard and every virtual printer" in output

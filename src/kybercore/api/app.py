@@ -149,7 +149,7 @@ def create_app(
         try:
             async with new_http_client() as http:
                 if front is not None:
-                    async with _front(app, front, http, folder, engine, queue_options):
+                    async with _front(app, front, http, folder, engine, queue_options, on_started):
                         yield
                     return
                 service = FleetService(registry, http, **service_options)
@@ -228,6 +228,7 @@ async def _front(
     folder: Path,
     engine: AsyncEngine,
     queue_options: Mapping[str, Any] | None,
+    on_started: OnStarted | None,
 ) -> AsyncIterator[None]:
     service = front.fleet(http)
     await service.start()
@@ -236,6 +237,10 @@ async def _front(
         app.state.service = service
         app.state.queue = queue
         async with front.serving(service, queue):
-            yield
+            started = asyncio.create_task(on_started(service, queue)) if on_started else None
+            try:
+                yield
+            finally:
+                await cancel_and_wait(started)
     finally:
         await service.stop()

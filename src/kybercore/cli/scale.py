@@ -18,7 +18,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -26,6 +26,9 @@ from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, Printer
 from kybercore.cli.output import console, fail
 from kybercore.errors import KyberCoreError
 from kybercore.registry.models import PrinterConfig
+
+if TYPE_CHECKING:
+    from kybercore.api.app import OnStarted
 
 NatsUrl = Annotated[
     str,
@@ -135,23 +138,48 @@ def front(
     NATS (no printer sockets here). printers.json is imported into an empty registry on
     NATS. Several fronts share one database (--database-url, PostgreSQL); one of them
     dispatches the queue at a time."""
+    from kybercore.registry.store import default_printers_path
+
+    serve_front(
+        nats_url, host, port, printers_file or default_printers_path(),
+        allowed_host=allowed_host or [], database_url=database_url, slots=slots,
+        name=front_id or f"{socket.gethostname()}-{os.getpid()}", lease_ttl=lease_ttl,
+        log_level=log_level,
+    )  # fmt: skip
+
+
+def serve_front(
+    nats_url: str,
+    host: str,
+    port: int,
+    path: Path,
+    *,
+    allowed_host: list[str],
+    database_url: str | None,
+    slots: int,
+    name: str,
+    lease_ttl: float,
+    log_level: str,
+    on_started: OnStarted | None = None,
+) -> None:
+    """``kybercore front``'s work, also the distributed demo's (which queues its jobs
+    ``on_started``)."""
     import uvicorn
 
     from kybercore.api.app import create_app
     from kybercore.cli.serve import _access, _allowed_hosts, _default_database
-    from kybercore.registry.store import PrinterRegistry, default_printers_path
+    from kybercore.registry.store import PrinterRegistry
     from kybercore.scale.broker import reachable
     from kybercore.scale.front_queue import Front
     from kybercore.sim.stack import ensure_port_free
 
-    path = printers_file or default_printers_path()
     try:
         asyncio.run(reachable(nats_url))
     except OSError as exc:
         raise _unreachable(nats_url, exc) from None
     try:
         ensure_port_free(port, host)
-        hosts = _allowed_hosts(host, allowed_host or [])
+        hosts = _allowed_hosts(host, allowed_host)
         access = _access(path, host)
     except KyberCoreError as exc:
         raise fail(exc.message) from None
@@ -161,9 +189,8 @@ def front(
         access,
         allowed_hosts=hosts,
         database_url=database_url or _default_database(path),
-        front=Front(
-            nats_url, slots, path, front_id or f"{socket.gethostname()}-{os.getpid()}", lease_ttl
-        ),
+        on_started=on_started,
+        front=Front(nats_url, slots, path, name, lease_ttl),
     )
     uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets-sansio")
 
@@ -214,6 +241,7 @@ async def _registry_printers(url: str, with_keys: bool) -> list[PrinterConfig]:
 def demo_workers(workers: int, host: str, port: int, printers_file: Path) -> None:
     """The demo's distributed form: a local nats-server, ``workers`` ingest workers (child
     processes) and a front in this process, over the demo's printers.json."""
+    from kybercore.cli.serve import _queue_demo_jobs
     from kybercore.scale.broker import LocalServer
 
     # Each demo starts from its printers.json: the last run's registry and leases go.
@@ -223,7 +251,11 @@ def demo_workers(workers: int, host: str, port: int, printers_file: Path) -> Non
     console.print(f"NATS (JetStream) at {broker.url}; {workers} ingest workers.")
     try:
         with _workers(broker.url, workers, printers_file.parent):
-            front(broker.url, host, port, printers_file, None, None, 64, "warning")
+            serve_front(
+                broker.url, host, port, printers_file, allowed_host=[], database_url=None,
+                slots=64, name="demo-front", lease_ttl=6.0, log_level="warning",
+                on_started=_queue_demo_jobs,
+            )  # fmt: skip
     finally:
         broker.stop()
 

@@ -145,20 +145,20 @@ def demo(
             status.stop()
             _print_fleet(stacks)
             console.print(f"\n[bold green]KyberCore is up:[/bold green] http://{host}:{port}/")
-            if not workers:
-                console.print(
-                    "A few jobs are queued: open the Queue view to watch them dispatch, and "
-                    "clear each printer's plate when its print is done."
-                )
+            console.print(
+                "A few jobs are queued: open the Queue view to watch them dispatch, and "
+                "clear each printer's plate when its print is done."
+            )
             console.print("Press Ctrl-C to stop the dashboard and every virtual printer.\n")
             if workers:
                 from kybercore.cli.scale import demo_workers
 
                 demo_workers(workers, host, port, path)
-                return
-            _run_server(
-                registry, host, port, access, _allowed_hosts(host, []), on_started=_queue_demo_jobs
-            )
+            else:
+                _run_server(
+                    registry, host, port, access, _allowed_hosts(host, []),
+                    on_started=_queue_demo_jobs,
+                )  # fmt: skip
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     console.print("Stopped the dashboard and every virtual printer.")
