@@ -22,6 +22,9 @@ from urllib.parse import urlsplit
 
 import nats
 from nats.aio.client import Client
+from nats.js.api import ObjectStoreConfig
+from nats.js.errors import NotFoundError
+from nats.js.object_store import ObjectStore
 
 from kybercore.errors import LaunchError
 
@@ -79,6 +82,18 @@ def _errors(url: str) -> Callable[[Exception], Awaitable[None]]:
             log.warning("NATS at %s: %s (retrying)", url, exc or type(exc).__name__)
 
     return note
+
+
+async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
+    """The object store ``config.bucket``, created with ``config`` when absent. Looked up on
+    every use (they are rare, and the broker may have restarted); never re-created over a
+    bucket of another configuration."""
+    assert config.bucket is not None
+    js = nc.jetstream()
+    try:
+        return await js.object_store(config.bucket)
+    except NotFoundError:
+        return await js.create_object_store(config.bucket, config)
 
 
 def server_binary() -> Path:

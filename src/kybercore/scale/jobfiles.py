@@ -25,6 +25,7 @@ from nats.js.object_store import ObjectStore
 from kybercore.errors import FileNotFound, TransferFailed
 from kybercore.jobs.files import Content, JobFiles
 from kybercore.jobs.models import JobFile
+from kybercore.scale.broker import object_store
 from kybercore.scale.uploads import CHUNK_BYTES, HashingWriter
 
 log = logging.getLogger(__name__)
@@ -41,12 +42,8 @@ class SharedJobFiles(JobFiles):
         self._nc = nc
 
     async def _bucket(self) -> ObjectStore:
-        js = self._nc.jetstream()
-        try:
-            return await js.object_store(BUCKET)
-        except NotFoundError:
-            config = ObjectStoreConfig(description="KyberCore: the job queue's files")
-            return await js.create_object_store(BUCKET, config)
+        config = ObjectStoreConfig(bucket=BUCKET, description="KyberCore: the job queue's files")
+        return await object_store(self._nc, config)
 
     async def put(self, name: str, content: Content) -> JobFile:
         """Store the file here and in the broker; TransferFailed (and nothing queued) when

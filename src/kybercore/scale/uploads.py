@@ -41,6 +41,7 @@ from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput, TransferFailed, UploadCorrupted
 from kybercore.fleet.actions import ActionOutcome
 from kybercore.fleet.service import FleetService
+from kybercore.scale.broker import object_store
 from kybercore.scale.commands import ANSWER_SECONDS, send_command
 
 log = logging.getLogger(__name__)
@@ -205,17 +206,12 @@ class Uploads:
         self._nc = nc
 
     async def _bucket(self) -> ObjectStore:
-        # Looked up on every use (an upload is rare; the broker may have restarted); created
-        # when absent. Never re-created over a bucket of another configuration.
-        js = self._nc.jetstream()
-        try:
-            return await js.object_store(BUCKET)
-        except NotFoundError:
-            config = ObjectStoreConfig(
-                description="KyberCore: uploads on their way from a front to a worker",
-                ttl=TTL_SECONDS,
-            )
-            return await js.create_object_store(BUCKET, config)
+        config = ObjectStoreConfig(
+            bucket=BUCKET,
+            description="KyberCore: uploads on their way from a front to a worker",
+            ttl=TTL_SECONDS,
+        )
+        return await object_store(self._nc, config)
 
     async def put(self, content: bytes | BinaryIO, printer_id: str) -> tuple[str, int, str]:
         """Stream ``content`` (from where it stands) into the bucket: ``(object name, size,
