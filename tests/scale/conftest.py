@@ -1,4 +1,5 @@
-"""Fixtures of the scale-out tests: a cluster of real processes sharing a real PostgreSQL."""
+"""Fixtures of the scale-out tests: clusters of real processes (a broker of their own, two
+workers, a front), one shared by a module's tests, or one with a real PostgreSQL."""
 
 from __future__ import annotations
 
@@ -32,4 +33,14 @@ def shared_cluster(
 ) -> Iterator[Cluster]:
     """Two workers and a front on a broker of their own, sharing ``shared_database``."""
     with fresh_cluster(fleet_stacks, tmp_path, shared_database) as started:
+        yield started
+
+
+@pytest.fixture(scope="module")
+def cluster(
+    fleet_stacks: list[PrinterStack], tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Cluster]:
+    """A cluster without a database, shared by the tests of one module (a module needing
+    its own per test defines ``cluster`` itself)."""
+    with fresh_cluster(fleet_stacks, tmp_path_factory.mktemp("cluster")) as started:
         yield started

@@ -7,7 +7,7 @@ job is found in Moonraker's history by its upload name."""
 from __future__ import annotations
 
 import uuid
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -21,20 +21,12 @@ from kybercore.scale.front import FrontFleet
 from kybercore.scale.queue import FrontPrinters
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import travel_gcode, wait_for
-from tests.scale.cluster import SLOTS, Cluster, fresh_cluster
+from tests.scale.cluster import SLOTS, Cluster
 
 pytestmark = pytest.mark.integration
 
 PRINTS_WITHIN = 30.0
 """A start reaches print_stats "printing" (about a second on an idle machine)."""
-
-
-@pytest.fixture(scope="module")
-def cluster(
-    fleet_stacks: list[PrinterStack], tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[Cluster]:
-    with fresh_cluster(fleet_stacks, tmp_path_factory.mktemp("front-printers")) as started:
-        yield started
 
 
 @pytest.fixture

@@ -19,21 +19,13 @@ from kybercore.core.macros import macros_of
 from kybercore.scale.wire import MAX_IMAGE
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import wait_until
-from tests.scale.cluster import Cluster, fresh_cluster
+from tests.scale.cluster import Cluster
 
 pytestmark = pytest.mark.integration
 
 SAMPLES = Path(__file__).resolve().parents[2] / "src/kybercore/sim/samples"
 JPEG = b"\xff\xd8\xff"
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-@pytest.fixture(scope="module")
-def cluster(
-    fleet_stacks: list[PrinterStack], tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[Cluster]:
-    with fresh_cluster(fleet_stacks, tmp_path_factory.mktemp("front-reads")) as started:
-        yield started
 
 
 @pytest.fixture
