@@ -200,6 +200,9 @@ def test_every_screen_speaks_spanish(
         page = new_page(locale="en-US", color_scheme="light")
         open_fleet(page, kybercore_server.url)
         page.select_option("#lang", "es")
+        # The switch applies once es.json has loaded; a dialog opened before that is built in
+        # English (a user cannot switch with a dialog open: it is modal).
+        expect(page.locator("html")).to_have_attribute("lang", "es")
         show(page)
         text = re.sub(r"\S+\.(gcode|gco|g)\b", " ", page.evaluate(_WORDS))  # the user's files
         for value in sorted(filter(None, data), key=len, reverse=True):
