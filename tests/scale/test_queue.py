@@ -219,9 +219,3 @@ async def test_a_start_whose_outcome_is_unknown_is_printer_unreachable(
     for _ in range(2):
         with pytest.raises(PrinterUnreachable):
             await printers.start("p1", "kybercore/j1-a.gcode")
-
-
-async def test_a_file_on_a_printer_is_not_queued_from_a_front(fleet: FrontFleet) -> None:
-    with pytest.raises(Exception, match="upload the file to the queue instead") as caught:
-        await FrontPrinters(fleet).download("p1", "a.gcode")
-    assert getattr(caught.value, "code", "") == "not_on_front"

@@ -44,6 +44,7 @@ from kybercore.scale.wire import (
 )
 
 if TYPE_CHECKING:
+    from kybercore.scale.jobfiles import JobFileBucket
     from kybercore.scale.uploads import Uploads
 
 log = logging.getLogger(__name__)
@@ -139,12 +140,15 @@ class CommandRunner:
         epoch_of: Callable[[str], int | None],
         *,
         uploads: Uploads | None = None,
+        jobfiles: JobFileBucket | None = None,
     ) -> None:
         """``epoch_of(printer_id)``: the printer's slot epoch while this worker may act for
-        it (the lease is fresh), else None. ``uploads``: where uploaded files wait (without
-        it, the ``upload`` command is unknown here)."""
+        it (the lease is fresh), else None. ``uploads``: where uploaded files wait;
+        ``jobfiles``: where the queue's files are shared (without them, the ``upload`` and
+        ``fetch_file`` commands are unknown here)."""
         self._service = service
         self._uploads = uploads
+        self._jobfiles = jobfiles
         self._epoch_of = epoch_of
         self._seen: OrderedDict[str, None] = OrderedDict()
         self._running: set[asyncio.Task[None]] = set()
@@ -200,6 +204,9 @@ class CommandRunner:
         if op == "upload" and self._uploads is not None:
             # Not in OPS: it needs the worker's object store as well as its FleetService.
             return encode_outcome(await self._uploads.receive(self._service, printer_id, args))
+        if op == "fetch_file" and self._jobfiles is not None:
+            # Not in OPS either: the file goes into the broker's object store.
+            return await self._jobfiles.offer(self._service, printer_id, str(args["path"]))
         run = OPS.get(op)
         if run is None:
             raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")

@@ -10,7 +10,8 @@ worker that owns its slot. So the queue is split the way the rest of a front is:
 - what the queue does on a printer goes to its owner as a command (:mod:`.commands`),
   which does it with :class:`~kybercore.jobs.printers.FleetPrinters` over its own session,
   exactly as ``kybercore serve``'s queue would (:mod:`.ops`); a file crosses the broker's
-  object store first (:mod:`.uploads`).
+  object store: to a printer first (:mod:`.uploads`), from one to be queued
+  (:mod:`.jobfiles`).
 
 Where a front's answers differ from :class:`FleetPrinters`' (the views are what browsers
 get, not Moonraker's raw status), the method says so.
@@ -19,6 +20,7 @@ get, not Moonraker's raw status), the method says so.
 from __future__ import annotations
 
 import asyncio
+import io
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Final
@@ -27,7 +29,7 @@ import nats.errors
 
 from kybercore.core.numbers import finite_number
 from kybercore.core.view import facts_of_view
-from kybercore.errors import PrinterUnreachable, not_on_front
+from kybercore.errors import PrinterUnreachable
 from kybercore.jobs.heating import is_heating
 from kybercore.jobs.printers import (
     Change,
@@ -38,6 +40,7 @@ from kybercore.jobs.printers import (
     target_set,
 )
 from kybercore.scale.front import FrontFleet
+from kybercore.scale.jobfiles import JobFileBucket
 
 _STATE_KEYS: Final = frozenset({"connection", "klippy_state", "klippy_message"})
 """Top-level view fields whose change is a ``state`` change (Klippy's message with its state,
@@ -159,13 +162,15 @@ class FrontPrinters:
         return found
 
     async def download(self, printer_id: str, path: str) -> bytes:
-        """Not on a front: a printer's file would have to cross the broker the other way."""
-        self._fleet.config(printer_id)
-        raise not_on_front(
-            "Queueing a file that is on a printer",
-            "upload the file to the queue instead (POST /api/jobs with the file, or the "
-            "queue page), or use `kybercore serve`",
-        )
+        """The printer's file, by way of the broker's ``kc_jobfiles``: the owner downloads
+        it there under its sha256 (see :mod:`.jobfiles`), and it is read back here, checked.
+        In memory once, as :class:`FleetPrinters` has it; the queue then stores it, already
+        shared. A file the printer does not have raises what it raises in ``serve``;
+        TransferFailed when the broker did not take it or give it back."""
+        shared = await self._ask(printer_id, "fetch_file", path=path)
+        copy = io.BytesIO()
+        await JobFileBucket(self._fleet.nc).fetch(str(shared["sha256"]), copy)
+        return copy.getvalue()  # the buffer itself, not a copy of it
 
     async def _ask(self, printer_id: str, op: str, **args: Any) -> Any:
         try:

@@ -40,6 +40,7 @@ from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry
 from kybercore.scale.commands import CommandRunner
+from kybercore.scale.jobfiles import JobFileBucket
 from kybercore.scale.leases import Leases
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
@@ -94,7 +95,9 @@ class Worker:
             nc, worker_id, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
             on_change=self._lease_changed,
         )  # fmt: skip
-        self.commands = CommandRunner(self.service, self._epoch_of, uploads=Uploads(nc))
+        self.commands = CommandRunner(
+            self.service, self._epoch_of, uploads=Uploads(nc), jobfiles=JobFileBucket(nc)
+        )
         self.ledger = None
         if database is not None:
             self.ledger = LedgerService(
