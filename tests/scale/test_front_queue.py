@@ -6,12 +6,14 @@ nats-server, workers, front, PostgreSQL, Moonraker and Klippy."""
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import os
 import shutil
 import signal
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from uuid import uuid4
 
 import httpx
 
@@ -77,6 +79,40 @@ def test_a_job_added_on_a_front_prints_on_a_workers_printer_one_cleared_plate_at
     call(cluster, "POST", f"/api/printers/{printer}/clear", json={"verdict": "good"})
     job = call(cluster, "GET", f"/api/jobs/{job_id}")
     assert (job["done"], job["state"]) == (2, "done"), job
+
+
+def test_a_file_already_on_a_printer_is_queued_through_a_front(
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack]
+) -> None:
+    cluster = shared_cluster
+    stack = fleet_stacks[2]
+    printer = stack.options.name
+    name = f"on-printer-{uuid4().hex[:8]}.gcode"
+    # Over a NATS message's 1 MB: it can only cross in the broker's object store.
+    original = SHORT + b"".join(b"; padding %07d\n" % i for i in range(80_000))
+    upload = {"file": (name, original)}
+    httpx.post(f"{stack.url}/server/files/upload", files=upload, timeout=60).raise_for_status()
+    try:
+        call(cluster, "POST", "/api/queue", json={"paused": True})  # the file is what is tested
+        created = call(
+            cluster, "POST", "/api/jobs", json={"printer": printer, "path": name, "pin": True}
+        )
+        file = created["file"]
+        assert (file["name"], file["size"]) == (name, len(original))
+        assert file["sha256"] == hashlib.sha256(original).hexdigest()
+        assert created["requirements"]["printer"] == printer
+
+        missing = httpx.post(
+            f"{cluster.front.url}/api/jobs", json={"printer": printer, "path": "nope.gcode"},
+            timeout=60,
+        )  # fmt: skip
+        # As on `kybercore serve`: the printer's Moonraker's own answer.
+        assert missing.status_code == 404, missing.text
+        error = missing.json()["error"]
+        assert error["code"] == "not_found"
+        assert error["message"].startswith(f"{printer}: Moonraker refused the request (404)")
+    finally:
+        httpx.delete(f"{stack.url}/server/files/gcodes/{name}", timeout=30).raise_for_status()
 
 
 def second_front(cluster: Cluster, folder: Path, database_url: str) -> KyberCoreServer:
