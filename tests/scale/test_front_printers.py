@@ -16,11 +16,15 @@ import pytest
 
 from kybercore.core.validation import PrinterFacts
 from kybercore.core.view import detect_capabilities
+from kybercore.db import default_database_url, open_database
 from kybercore.jobs.printers import Change
+from kybercore.jobs.store import JobStore
+from kybercore.jobs.tracker import Tracker
 from kybercore.scale.front import FrontFleet
 from kybercore.scale.queue import FrontPrinters
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import travel_gcode, wait_for
+from tests.jobs.conftest import new_job
 from tests.scale.cluster import SLOTS, Cluster
 
 pytestmark = pytest.mark.integration
@@ -161,14 +165,22 @@ async def leave_idle(front: FrontFleet, printer: str, name: str) -> None:
     await front.delete_file(printer, name)
 
 
-async def test_a_print_klipper_shut_down_is_found_in_the_history(
+async def test_a_print_klipper_shut_down_is_recorded_with_klippys_message(
     front: FrontFleet, fleet_stacks: list[PrinterStack], tmp_path: Path
 ) -> None:
     # What the tracker has on a front when Klippy shuts down mid-print: the view blanks the
-    # job's state while Klippy is not ready, and Moonraker's history tells how it ended.
+    # job's state while Klippy is not ready, Moonraker's history tells how it ended, and the
+    # view's Klippy message says why, in the words `kybercore serve` records
+    # (tests/jobs/test_outcomes.py).
     printers = FrontPrinters(front)
     printer = "fleet-c"
-    name = f"kybercore/front-{uuid.uuid4().hex[:8]}.gcode"
+    engine = await open_database(default_database_url(tmp_path))
+    store = JobStore(engine)
+    job = await store.create_job(new_job(name=f"front-{uuid.uuid4().hex[:8]}.gcode"), "ana")
+    attempt = await store.reserve(job.id, printer)
+    assert attempt is not None
+    name = attempt.upload_name
+    tracker = Tracker(printers, store, on_ended=lambda: None)
     source = tmp_path / "part.gcode"
     source.write_bytes(travel_gcode())
     try:
@@ -177,6 +189,9 @@ async def test_a_print_klipper_shut_down_is_found_in_the_history(
         await wait_for(
             lambda: printers.shown(printer).state == "printing", PRINTS_WITHIN, "printing"
         )
+        # As the dispatcher hands a started print to the tracker.
+        await store.advance(attempt.id, "printing")
+        await tracker.start()
         await front.act(printer, "emergency_stop")
         # Klippy's state and its message may reach the front in two patches.
         await wait_for(
@@ -193,7 +208,18 @@ async def test_a_print_klipper_shut_down_is_found_in_the_history(
             return job is not None and job["status"] == "klippy_shutdown"
 
         await wait_for(recorded, 30, "Moonraker's history recording the shutdown")
+
+        async def ended() -> bool:
+            return not (await store.attempt(attempt.id)).live
+
+        await wait_for(ended, 30, "the tracker ending the attempt")
+        failed = await store.attempt(attempt.id)
+        why = shown.klippy_message.strip().splitlines()[0]
+        assert (failed.state, failed.reason) == ("failed", f"Klipper shut down mid-print: {why}")
+        assert failed.moonraker_job_id
     finally:
+        await tracker.stop()
+        await engine.dispose()
         if printers.shown(printer).klippy_state != "ready":
             await front.act(printer, "firmware_restart")
             await wait_for(

@@ -15,6 +15,7 @@ from nats.errors import ConnectionClosedError
 from kybercore.core.view import LivePrinter, facts, fuse
 from kybercore.errors import OutcomeUnknown, PrinterUnreachable, UnknownPrinter
 from kybercore.jobs.printers import Change, QueuePrinters, shown_of
+from kybercore.jobs.tracker import from_history, seen
 from kybercore.registry.models import PrinterConfig
 from kybercore.scale.front import FrontFleet
 from kybercore.scale.queue import FrontPrinters, changes_of, shown_of_view
@@ -124,6 +125,26 @@ def test_what_a_view_shows_differs_where_the_view_says_less() -> None:
         shown_of_view(fuse(config("p"), fresh)).print_duration,
         shown_of(fresh).print_duration,
     ) == (0.0, None)
+
+
+def test_a_shutdown_mid_print_is_recorded_in_the_same_words_on_a_front_as_on_serve() -> None:
+    why = "MCU 'mcu' shutdown: Timer too close\nOnce the underlying issue is corrected, ..."
+    webhooks = {"state": "shutdown", "state_message": why}
+    down = online(klippy_state="shutdown", klippy_message=why,
+                  status={**PRINTING, "webhooks": webhooks})  # fmt: skip
+    name = PRINTING["print_stats"]["filename"]
+    on_serve = seen(shown_of(down), name)
+    assert on_serve is not None
+    # A front's view blanks the print's state: only the history says the print was cut short.
+    on_front = shown_of_view(fuse(config("p"), down))
+    assert seen(on_front, name) is None
+    history = {"filename": name, "status": "klippy_shutdown", "print_duration": 61.0}
+    assert from_history(history, on_front) == on_serve
+    assert on_serve.reason == "Klipper shut down mid-print: MCU 'mcu' shutdown: Timer too close"
+    # Without Klippy still shut down under that file, the history's own words.
+    ready = shown_of_view(fuse(config("p"), online()))
+    said = from_history(history, ready).reason
+    assert said == "Klipper shut down mid-print (Moonraker's history)."
 
 
 @pytest.fixture

@@ -58,9 +58,7 @@ def seen(shown: Shown, upload_name: str) -> Outcome | None:
         return None
     state, seconds, message = shown.state, shown.print_duration, shown.message
     if state in ("printing", "paused", "error") and shown.klippy_state == "shutdown":
-        why = shown.klippy_message.strip()
-        why = why.splitlines()[0] if why else message or "no message"
-        return Outcome("failed", f"Klipper shut down mid-print: {why}", seconds)
+        return Outcome("failed", shut_down(shown), seconds)
     if state == "printing":
         return Outcome("printing")
     if state == "paused":
@@ -74,10 +72,33 @@ def seen(shown: Shown, upload_name: str) -> Outcome | None:
     return None
 
 
-def from_history(job: Mapping[str, Any]) -> Outcome:
-    """The outcome a Moonraker history job records."""
+def shut_down(shown: Shown) -> str:
+    """Why a print Klipper shut down under failed: the first line of Klippy's message (else
+    ``print_stats``' message)."""
+    why = shown.klippy_message.strip()
+    why = why.splitlines()[0] if why else shown.message or "no message"
+    return f"Klipper shut down mid-print: {why}"
+
+
+def still_shut_down(shown: Shown, job: Mapping[str, Any]) -> bool:
+    """Whether the history ``job`` ended in the shutdown the printer still shows: Klippy is
+    shut down with the job's file still named (no print and no restart since)."""
+    return (
+        job.get("status") == "klippy_shutdown"
+        and shown.klippy_state == "shutdown"
+        and shown.filename == job.get("filename")
+    )
+
+
+def from_history(job: Mapping[str, Any], shown: Shown | None = None) -> Outcome:
+    """The outcome a Moonraker history job records. Ended by the shutdown ``shown`` still
+    shows, it carries Klippy's message, as :func:`seen` words it: a front's view blanks the
+    print's state while Klippy is not ready, so there the history tells the print was cut
+    short, and the view still has Klippy's message."""
     status = str(job.get("status", ""))
     seconds = finite_number(job.get("print_duration"))
+    if shown is not None and still_shut_down(shown, job):
+        return Outcome("failed", shut_down(shown), seconds)
     if status == "in_progress":
         return Outcome("printing")
     if status == "completed":
@@ -234,7 +255,12 @@ class Tracker:
                 job = None
             if job is not None:
                 job_id = str(job.get("job_id") or "") or job_id
-                outcome = outcome or from_history(job)
+                unsaid = still_shut_down(shown, job) and not shown.klippy_message.strip()
+                if outcome is None and unsaid:
+                    # On a front, Klippy's message may come in a patch after its state's:
+                    # that patch settles again (a restart does, if it never comes).
+                    return
+                outcome = outcome or from_history(job, shown)
         if outcome is None:
             outcome = (
                 Outcome("failed_to_start", RESTARTED)
