@@ -15,7 +15,7 @@ from typing import Any
 
 import httpx
 import pytest
-from sqlalchemy import text
+from sqlalchemy import event, text
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import default_database_url, open_database
@@ -24,10 +24,12 @@ from kybercore.moonraker.events import StatusDelta
 from kybercore.notify.models import NoiseSettings
 from kybercore.notify.rules import QuietHours
 from kybercore.notify.senders import SIGNATURE_HEADER, TIMESTAMP_HEADER, verify
+from kybercore.notify.service import READS_AT_ONCE
 from kybercore.registry.models import PrinterConfig
 from kybercore.sim.stack import free_port
 from tests.helpers import wait_for
 from tests.jobs.conftest import new_job
+from tests.notify.conftest import fleet_event
 from tests.notify.live_notify import FAST, SECRET, add_webhook, kinds, received, running_notify
 from tests.notify.receiver import Receiver
 
@@ -236,3 +238,41 @@ async def test_a_database_failure_is_logged_and_the_service_goes_on(
         await wait_for(lambda: failures() >= 2, DELIVERED_WITHIN, "both failures logged")
         ticks = notify.ticks
         await wait_for(lambda: notify.ticks > ticks + 2, DELIVERED_WITHIN, "the ticks go on")
+
+
+async def test_a_burst_of_events_is_recorded_whole_without_taking_every_connection(
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+) -> None:
+    # A bulk pause of a whole farm emits an event per printer at once. Each event once read
+    # the channels on a connection of its own: the pool ran dry, its timeout lost events,
+    # and the fleet's own writes waited behind them.
+    burst = 60  # four times the pool (5 + 10 overflow)
+    out, peak = 0, 0
+
+    def checked_out(*_: Any) -> None:
+        nonlocal out, peak
+        out += 1
+        peak = max(peak, out)
+
+    def checked_in(*_: Any) -> None:
+        nonlocal out
+        out -= 1
+
+    async with running_notify([], tmp_path, http, engine) as notify:
+        channel = await add_webhook(notify, Receiver())  # down: deliveries stay pending
+        pool = engine.sync_engine.pool
+        event.listen(pool, "checkout", checked_out)
+        event.listen(pool, "checkin", checked_in)
+        try:
+            for index in range(burst):
+                notify._emit(fleet_event(printer=f"p{index}"))
+
+            async def all_recorded() -> bool:
+                return len(await notify.store.deliveries(channel.id, limit=burst)) == burst
+
+            await wait_for(all_recorded, DELIVERED_WITHIN * 3, f"{burst} events recorded")
+        finally:
+            event.remove(pool, "checkout", checked_out)
+            event.remove(pool, "checkin", checked_in)
+    # The reads, the recorder, the outbox and this test's polling: never the pool's 15.
+    assert peak <= READS_AT_ONCE + 3, peak

@@ -59,6 +59,10 @@ INTEREST: Final = Interest(
 )
 """The deltas the fleet passes on: those that can change an :class:`Observation` (not
 ``print_duration`` and the like, which every update carries)."""
+READS_AT_ONCE: Final = 2
+"""Events reading the channels from the database at once: a bulk pause of 1,000 printers
+emits 1,000 events in one go, and their reads must not take every pooled connection (the
+pool's timeout then lost events, and held up the fleet's own writes)."""
 STOP_GRACE: Final = 5.0
 """Seconds :meth:`NotifyService.stop` gives the events under way to reach the database."""
 
@@ -96,6 +100,7 @@ class NotifyService:
         self._detector = Detector(self.settings)
         self._noise = NoiseFilter(self.settings)
         self._seen: dict[str, Observation] = {}
+        self._reading = asyncio.Semaphore(READS_AT_ONCE)
         self._pipeline: asyncio.Queue[asyncio.Task[Prepared] | None] = asyncio.Queue()
         self._recording: asyncio.Task[None] | None = None
         self._loops: list[asyncio.Task[None]] = []
@@ -237,7 +242,8 @@ class NotifyService:
         self._pipeline.put_nowait(asyncio.create_task(self._prepare(event)))
 
     async def _prepare(self, event: FleetEvent) -> Prepared:
-        channels = [c for c in await self.store.channels() if c.enabled]
+        async with self._reading:
+            channels = [c for c in await self.store.channels() if c.enabled]
         local = datetime.now().time()  # quiet hours are the server's local time
         routes = {c.id: route(c.rules, event, local) for c in channels}
         routes = {cid: how for cid, how in routes.items() if how != "skip"}
