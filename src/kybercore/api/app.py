@@ -88,6 +88,7 @@ from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
+from kybercore.notify.printers import FleetNotifyPrinters
 from kybercore.notify.service import NotifyService
 from kybercore.registry.store import PrinterRegistry
 
@@ -166,7 +167,8 @@ def create_app(
                 app.state.ledger = ledger
                 # ---------------------------------------------------------------------
                 # -- notifications (issue 18): events to webhooks and Apprise ---------
-                notify = NotifyService(service, queue, engine, http, **(notify_options or {}))
+                printers = FleetNotifyPrinters(service, http)
+                notify = NotifyService(printers, queue, engine, http, **(notify_options or {}))
                 await notify.start()
                 app.state.notify = notify
                 # ---------------------------------------------------------------------
