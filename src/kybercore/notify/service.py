@@ -3,7 +3,7 @@ that want them, without ever slowing the fleet down.
 
 The pipeline (the pure parts are N1's, storage and delivery N2's)::
 
-    NotifyPrinters.listen ─► Observation ─► Detector ─┐
+    NotifyPrinters.listen ─► Observation ─► Detector ┐
     tick (every ``tick`` s) ─► Detector.tick ────────┼─► NoiseFilter ─► route() per channel
     queue checks (every ``queue_poll`` s) ───────────┘      (cooldown,      ─► webcam snapshot
                                                              storm folds)   ─► NotifyStore.record
@@ -260,17 +260,13 @@ class NotifyService:
         routes = {c.id: route(c.rules, event, local) for c in channels}
         routes = {cid: how for cid, how in routes.items() if how != "skip"}
         snapshot = None
-        if event.printer is not None and self._wants_snapshot(event, channels, routes):
+        if event.printer is not None and self._wants_snapshot(channels, routes):
             snapshot = await self.printers.snapshot(event.printer.id)
         return event, snapshot, routes
 
     @staticmethod
-    def _wants_snapshot(
-        event: FleetEvent, channels: list[Channel], routes: Mapping[int, Route]
-    ) -> bool:
-        return event.printer is not None and any(
-            routes.get(c.id) == "deliver" and c.rules.attach_snapshot for c in channels
-        )
+    def _wants_snapshot(channels: list[Channel], routes: Mapping[int, Route]) -> bool:
+        return any(routes.get(c.id) == "deliver" and c.rules.attach_snapshot for c in channels)
 
     async def _recorder(self) -> None:
         while (prepared := await self._pipeline.get()) is not None:

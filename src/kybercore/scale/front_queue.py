@@ -60,7 +60,8 @@ class Duty(Protocol):
 @dataclass(frozen=True)
 class Front:
     """What ``kybercore front`` hands the app (:class:`kybercore.api.app.Front`): the fleet
-    followed from NATS, the queue's printers reached by command, and the queue shared."""
+    followed from NATS, the queue's printers reached by command, and the queue and the
+    notifications shared."""
 
     nats_url: str
     slots: int
