@@ -58,9 +58,12 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
     # is a process's composition root, as api/app.py is: it runs the ledger of its printers.
     # A front runs the job queue through jobs.printers' protocol (scale/queue.py), and
     # owners do its work with jobs.printers' in-process implementation (scale/ops.py).
+    # The notifications run on a front through notify.printers' protocol
+    # (scale/front_notify.py); notify knows nothing of NATS.
     "scale": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
         "kybercore.moonraker", "kybercore.registry", "kybercore.ledger", "kybercore.jobs",
+        "kybercore.notify",
     ),
     "cli": ("kybercore",),
 }  # fmt: skip

@@ -16,6 +16,7 @@ from kybercore.jobs.files import JobFiles
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
 from kybercore.notify.models import NoiseSettings
+from kybercore.notify.printers import FleetNotifyPrinters
 from kybercore.notify.records import Channel
 from kybercore.notify.rules import ChannelRules
 from kybercore.notify.service import NotifyService
@@ -48,7 +49,7 @@ async def running_notify(
     fleet = FleetService(PrinterRegistry(path), http)
     queue = QueueService(fleet, JobStore(engine), JobFiles(folder / "files"))
     options = {"tick": 0.05, "queue_poll": 0.1, "outbox_options": RETRY, **options}
-    notify = NotifyService(fleet, queue, engine, http, **options)
+    notify = NotifyService(FleetNotifyPrinters(fleet, http), queue, engine, http, **options)
     await notify.store.save_settings(settings)
     await fleet.start()
     try:

@@ -66,7 +66,7 @@ def config(stack: PrinterStack, location: str = "Room B") -> PrinterConfig:
 
 
 def client_of(notify: NotifyService, stack: PrinterStack) -> MoonrakerClient:
-    client = notify.fleet.sessions.get(stack.options.name).client
+    client = notify.queue.fleet.sessions.get(stack.options.name).client
     assert client is not None
     return client
 
@@ -75,7 +75,7 @@ async def ready(notify: NotifyService, *stacks: PrinterStack) -> None:
     """Wait until every printer is online with Klippy ready, as KyberCore sees it."""
 
     def all_ready() -> bool:
-        views = [notify.fleet.view(stack.options.name) for stack in stacks]
+        views = [notify.queue.fleet.view(stack.options.name) for stack in stacks]
         return all(v["connection"] == "online" and v["klippy_state"] == "ready" for v in views)
 
     await wait_for(all_ready, READY_WITHIN, "the printers online and ready")
@@ -94,7 +94,7 @@ async def settled(notify: NotifyService) -> None:
 
 
 def offline(notify: NotifyService, stack: PrinterStack) -> bool:
-    return bool(notify.fleet.view(stack.options.name)["connection"] != "online")
+    return bool(notify.queue.fleet.view(stack.options.name)["connection"] != "online")
 
 
 async def test_a_printer_lost_while_printing_is_told_once_and_an_idle_one_not_at_all(
@@ -159,24 +159,24 @@ async def test_a_room_of_twelve_lost_together_is_one_message_and_a_flap_is_not_t
     async with running_notify(room, tmp_path, http, engine, settings) as notify:
         await add_webhook(notify, receiver, events=alerts)
         await wait_for(
-            lambda: all(notify.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
+            lambda: all(notify.queue.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
             READY_WITHIN,
             "the room online",
         )
-        client = notify.fleet.sessions.get("b01").client
+        client = notify.queue.fleet.sessions.get("b01").client
         assert client is not None
         await client.upload("notify-long.gcode", LONG)
         await client.print_start("notify-long.gcode")
 
         def printing() -> bool:
-            live = [notify.fleet.sessions.get(p.id).live for p in room]
+            live = [notify.queue.fleet.sessions.get(p.id).live for p in room]
             return all(x.status.get("print_stats", {}).get("state") == "printing" for x in live)
 
         await wait_for(printing, READY_WITHIN, "the room printing")
         for flap in range(2):
             await asyncio.to_thread(own_printer.stop_moonraker)
             await wait_for(
-                lambda: all(notify.fleet.view(p.id)["connection"] != "online" for p in room),
+                lambda: all(notify.queue.fleet.view(p.id)["connection"] != "online" for p in room),
                 TOLD_WITHIN,
                 "the room offline",
             )
@@ -186,7 +186,7 @@ async def test_a_room_of_twelve_lost_together_is_one_message_and_a_flap_is_not_t
             assert kinds(receiver) == told
             await asyncio.to_thread(own_printer.start_moonraker)
             await wait_for(
-                lambda: all(notify.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
+                lambda: all(notify.queue.fleet.view(p.id)["klippy_state"] == "ready" for p in room),
                 READY_WITHIN,
                 "the room back",
             )
@@ -258,12 +258,12 @@ async def test_an_emergency_stop_is_told_as_a_klippy_shutdown_and_its_recovery(
         await add_webhook(notify, receiver)
         await ready(notify, own_printer)
         pid = own_printer.options.name
-        await notify.fleet.act(pid, "emergency_stop")
+        await notify.queue.fleet.act(pid, "emergency_stop")
         await wait_for(lambda: kinds(receiver) == ["klippy_shutdown"], TOLD_WITHIN, "shutdown")
         [told] = received(receiver)
         assert (told["printer"]["id"], told["severity"]) == (pid, "critical")
 
-        await notify.fleet.act(pid, "firmware_restart")
+        await notify.queue.fleet.act(pid, "firmware_restart")
         await ready(notify, own_printer)
         await wait_for(lambda: "printer_recovered" in kinds(receiver), TOLD_WITHIN, "recovered")
         await settled(notify)

@@ -20,8 +20,9 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import default_database_url, open_database
 from kybercore.jobs.store import JobStore
-from kybercore.moonraker.events import StatusDelta
+from kybercore.moonraker.events import SessionEvent, StatusDelta
 from kybercore.notify.models import NoiseSettings
+from kybercore.notify.printers import FleetNotifyPrinters
 from kybercore.notify.rules import QuietHours
 from kybercore.notify.senders import SIGNATURE_HEADER, TIMESTAMP_HEADER, verify
 from kybercore.notify.service import READS_AT_ONCE
@@ -185,17 +186,27 @@ async def test_a_job_the_queue_blocks_after_its_failures_is_told_at_once(
 
 
 async def test_the_listener_skips_updates_nothing_reads_and_never_raises(
-    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
+    tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     async with running_notify(unreachable("p1"), tmp_path, http, engine) as notify:
-        calls: list[Any] = []
-        notify._observe = calls.append  # type: ignore[method-assign]
-        notify._on_event("p1", StatusDelta({"extruder": {"temperature": 200.0}}, 1.0))
-        assert calls == []
-        notify._on_event("p1", StatusDelta({"print_stats": {"state": "printing"}}, 1.0))
-        assert len(calls) == 1
+        fleet = notify.queue.fleet
+        listeners: list[Callable[[str, SessionEvent], None]] = []
+
+        def listen(listener: Callable[[str, SessionEvent], None], _interest: Any) -> Any:
+            listeners.append(listener)
+            return lambda: None
+
+        monkeypatch.setattr(fleet, "listen", listen)
+        heard: list[str] = []
+        FleetNotifyPrinters(fleet, http).listen(heard.append)
+        [hear] = listeners
+        hear("p1", StatusDelta({"extruder": {"temperature": 200.0}}, 1.0))
+        assert heard == []
+        hear("p1", StatusDelta({"print_stats": {"state": "printing"}}, 1.0))
+        hear("p1", StatusDelta({"filament_switch_sensor runout": {"enabled": False}}, 1.0))
+        assert heard == ["p1", "p1"]
         # A printer the fleet no longer has: logged, not raised into the fleet.
-        notify._on_event("gone", StatusDelta({"print_stats": {"state": "printing"}}, 1.0))
+        notify._on_change("gone")
 
 
 async def test_stopping_records_the_events_still_held_for_folding(

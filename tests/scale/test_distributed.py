@@ -156,12 +156,12 @@ def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) ->
         SETTLE,
         "the owner's view shows the new name",
     )
-    # The queue is served (tests/scale/test_front_queue.py); what a front does not do yet
-    # says so, as a clear refusal (not a 500).
+    # The queue and the notifications are served (tests/scale/test_front_queue.py,
+    # tests/scale/test_front_notify.py).
     assert httpx.get(f"{url}/api/queue", timeout=10).status_code == 200
     channels = httpx.get(f"{url}/api/notifications/channels", timeout=10)
-    assert channels.status_code == 409
-    assert channels.json()["error"]["code"] == "not_on_front"
+    assert channels.status_code == 200, channels.text
+    assert channels.json() == []
 
 
 def _name(cluster: Cluster, printer_id: str) -> str:

@@ -88,6 +88,7 @@ from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
+from kybercore.notify.printers import FleetNotifyPrinters
 from kybercore.notify.service import NotifyService
 from kybercore.registry.store import PrinterRegistry
 
@@ -100,10 +101,9 @@ OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
 
 
 class Front(Protocol):
-    """How a front on NATS (``kybercore front``, :mod:`kybercore.scale`) holds the fleet
-    and the queue: its printers are held by workers, the queue's database is shared with
-    the other fronts, and the ledger is written by the workers. The notifications do not
-    run on a front."""
+    """How a front on NATS (``kybercore front``, :mod:`kybercore.scale`) holds the fleet,
+    the queue and the notifications: its printers are held by workers, the database is
+    shared with the other fronts, and the ledger is written by the workers."""
 
     def fleet(self, http: httpx.AsyncClient) -> FleetService:
         """The fleet as this front follows it."""
@@ -115,11 +115,23 @@ class Front(Protocol):
         command, its files shared with the other fronts; ``options`` as for
         :class:`QueueService`."""
 
+    def notify(
+        self,
+        fleet: FleetService,
+        queue: QueueService,
+        engine: AsyncEngine,
+        http: httpx.AsyncClient,
+        options: Mapping[str, Any],
+    ) -> NotifyService:
+        """The notifications as this front serves them (not started: :meth:`serving`
+        runs them); ``options`` as for :class:`NotifyService`."""
+
     def serving(
-        self, fleet: FleetService, queue: QueueService
+        self, fleet: FleetService, queue: QueueService, notify: NotifyService
     ) -> AbstractAsyncContextManager[None]:
-        """While the app serves: share the queue's changes with the other fronts and
-        dispatch whenever this front holds the dispatcher role."""
+        """While the app serves: share the queue's changes and the notifications' with the
+        other fronts, and dispatch and notify whenever this front holds the dispatcher
+        role."""
 
 
 def create_app(
@@ -149,7 +161,8 @@ def create_app(
         try:
             async with new_http_client() as http:
                 if front is not None:
-                    async with _front(app, front, http, folder, engine, queue_options, on_started):
+                    options = {"queue": queue_options or {}, "notify": notify_options or {}}
+                    async with _front(app, front, http, folder, engine, options, on_started):
                         yield
                     return
                 service = FleetService(registry, http, **service_options)
@@ -166,7 +179,8 @@ def create_app(
                 app.state.ledger = ledger
                 # ---------------------------------------------------------------------
                 # -- notifications (issue 18): events to webhooks and Apprise ---------
-                notify = NotifyService(service, queue, engine, http, **(notify_options or {}))
+                printers = FleetNotifyPrinters(service, http)
+                notify = NotifyService(printers, queue, engine, http, **(notify_options or {}))
                 await notify.start()
                 app.state.notify = notify
                 # ---------------------------------------------------------------------
@@ -227,16 +241,18 @@ async def _front(
     http: httpx.AsyncClient,
     folder: Path,
     engine: AsyncEngine,
-    queue_options: Mapping[str, Any] | None,
+    options: Mapping[str, Mapping[str, Any]],
     on_started: OnStarted | None,
 ) -> AsyncIterator[None]:
     service = front.fleet(http)
     await service.start()
     try:
-        queue = front.queue(service, JobStore(engine), folder / "files", queue_options or {})
+        queue = front.queue(service, JobStore(engine), folder / "files", options["queue"])
+        notify = front.notify(service, queue, engine, http, options["notify"])
         app.state.service = service
         app.state.queue = queue
-        async with front.serving(service, queue):
+        app.state.notify = notify
+        async with front.serving(service, queue, notify):
             started = asyncio.create_task(on_started(service, queue)) if on_started else None
             try:
                 yield

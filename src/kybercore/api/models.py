@@ -353,6 +353,7 @@ class PrinterView(BaseModel):
     extrude_factor: float | None = Field(description="M221 (flow) as a fraction.")
     z_offset: float | None = Field(description="The Z babystep, mm (SET_GCODE_OFFSET).")
     can_extrude: bool = Field(description="The hotend is above min_extrude_temp.")
+    runout: bool = Field(description="An enabled filament sensor reports no filament.")
     spool: SpoolOut | None = Field(description="null without [spoolman] or an active spool.")
     spoolman: Literal["unknown", "absent", "none", "active", "unreachable"] = Field(
         description="Spoolman as the printer's Moonraker sees it: not read yet, no "

@@ -184,7 +184,8 @@ async def deliveries(
 )
 async def get_settings(notify: Notify) -> SettingsBody:
     """The fleet-wide noise control: cooldown, folding, storms, grace and waits."""
-    return SettingsBody.of(notify.settings)
+    # From the database: on NATS, the service running may be another front's.
+    return SettingsBody.of(await notify.store.settings())
 
 
 @router.put("/api/notifications/settings", response_model=SettingsBody, responses=ERROR_RESPONSES)

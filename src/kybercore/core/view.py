@@ -264,12 +264,29 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
         extrude_factor=_num(gcode_move.get("extrude_factor"), 2),
         z_offset=_z_offset(gcode_move.get("homing_origin")),
         can_extrude=status.get("extruder", {}).get("can_extrude") is True,
+        runout=filament_runout(status),
         spool=live.spool.public if live.spool else None,
         spoolman=live.spoolman,
         actions=_actions(config, live),
         updated_at=round(live.updated_at, 1),
     )
     return view
+
+
+_SENSORS = ("filament_switch_sensor ", "filament_motion_sensor ")
+
+
+def filament_runout(status: Status) -> bool:
+    """An enabled filament sensor (``[filament_switch_sensor x]``, ``[filament_motion_sensor
+    x]``) reports no filament. In the view because notifications read it (a pause for a
+    runout says so), also on a front, which has the views but not Klipper's status."""
+    return any(
+        name.startswith(_SENSORS)
+        and isinstance(fields, dict)
+        and fields.get("enabled", True) is not False
+        and fields.get("filament_detected") is False
+        for name, fields in status.items()
+    )
 
 
 def _thumbnail(live: LivePrinter, meta: dict[str, Any], filename: str) -> Any:

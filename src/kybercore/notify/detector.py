@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Final
 
-from kybercore.core.view import LivePrinter
+from kybercore.core.view import LivePrinter, filament_runout
 from kybercore.notify.models import EventKind, FleetEvent, NoiseSettings, PrinterRef
 
 ACTIVE: Final = frozenset({"printing", "paused"})
@@ -30,7 +30,6 @@ _KLIPPY_ALERTS: Final[Mapping[str, EventKind]] = {
 }
 # Klippy states that say something; the others come and go with every (re)connect.
 _KLIPPY_KNOWN: Final = frozenset({"ready", "shutdown", "error"})
-_SENSORS: Final = ("filament_switch_sensor ", "filament_motion_sensor ")
 
 Emit = Callable[..., None]
 """``emit(kind, **params)``: add an event about the observed printer."""
@@ -64,7 +63,6 @@ def observe(live: LivePrinter) -> Observation:
     status = live.status
     stats = status.get("print_stats", {})
     info = stats.get("info")
-    layer = info.get("current_layer") if isinstance(info, dict) else None
     state = stats.get("state")
     return Observation(
         connection=live.connection,
@@ -73,14 +71,40 @@ def observe(live: LivePrinter) -> Observation:
         print_state=state if isinstance(state, str) and state else None,
         filename=_text(stats.get("filename")) or None,
         print_message=_text(stats.get("message")),
-        layer=layer if isinstance(layer, int) and not isinstance(layer, bool) else None,
-        runout=any(
-            name.startswith(_SENSORS)
-            and fields.get("enabled", True) is not False
-            and fields.get("filament_detected") is False
-            for name, fields in status.items()
-        ),
+        layer=_layer(info.get("current_layer") if isinstance(info, dict) else None),
+        runout=filament_runout(status),
     )
+
+
+def observe_view(view: Mapping[str, Any]) -> Observation:
+    """The observation read back from a printer's fused view
+    (:func:`~kybercore.core.view.fuse`), for a process that has the views but not the live
+    state (a front on NATS): what :func:`observe` gives for the live state the view was
+    fused from, but for what the view does not keep apart:
+
+    - ``print_state`` is None while Klippy is not ready (the view blanks the job's state);
+      the detector reads the print state only once Klippy is ready, so its events are the
+      same;
+    - ``print_message`` falls back to the display's message (M117) when Klipper's
+      ``print_stats.message`` is empty, as the view's ``job.message`` does; Klipper sets the
+      latter when a print fails, the one case an event quotes it;
+    - a ``print_stats.filename`` that is not text reads as its text.
+    """
+    job: Mapping[str, Any] = view.get("job") or {}
+    return Observation(
+        connection=_text(view.get("connection")),
+        klippy_state=_text(view.get("klippy_state")),
+        klippy_message=_text(view.get("klippy_message")),
+        print_state=_text(job.get("state")) or None,
+        filename=_text(job.get("filename")) or None,
+        print_message=_text(job.get("message")),
+        layer=_layer(job.get("layer")),
+        runout=view.get("runout") is True,
+    )
+
+
+def _layer(value: Any) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 @dataclass(slots=True)

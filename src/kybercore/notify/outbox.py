@@ -15,6 +15,7 @@ import asyncio
 import contextlib
 import logging
 import random
+import time
 from datetime import UTC, datetime, timedelta
 from typing import Final
 
@@ -33,6 +34,8 @@ MAX_SENDING: Final = 20
 STOP_GRACE: Final = 5.0
 """Seconds :meth:`Outbox.stop` lets sends in flight finish, by default, before cutting
 them off."""
+OUTCOME_POLL: Final = 0.5
+"""Seconds between reads of a delivery awaited by :meth:`Outbox.wait_outcome`."""
 _IDLE_CHECK: Final = 60.0
 # Without anything pending the loop still looks every minute: another process on the same
 # database may have recorded events (this one's record() wakes it at once).
@@ -94,17 +97,21 @@ class Outbox:
 
     async def wait_outcome(self, delivery_id: int, timeout: float) -> Delivery:
         """The delivery once its first attempt is over (delivered, or failed and waiting for
-        a retry), or as it stands after ``timeout`` seconds."""
+        a retry), or as it stands after ``timeout`` seconds. This outbox's own sends are
+        heard at once; another process's (the front running the notifier, on NATS) are read
+        from the database every :data:`OUTCOME_POLL` seconds."""
         settled = self._outcomes.setdefault(delivery_id, asyncio.Event())
+        deadline = time.monotonic() + timeout
         try:
-            current = await self._store.delivery(delivery_id)
-            if current.attempts > 0 or current.status != "pending":
-                return current
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(settled.wait(), timeout)
+            while True:
+                current = await self._store.delivery(delivery_id)
+                left = deadline - time.monotonic()
+                if current.attempts > 0 or current.status != "pending" or left <= 0:
+                    return current
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(settled.wait(), min(left, OUTCOME_POLL))
         finally:
             self._outcomes.pop(delivery_id, None)
-        return await self._store.delivery(delivery_id)
 
     # -- the loop ----------------------------------------------------------------------
 

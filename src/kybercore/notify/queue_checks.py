@@ -24,11 +24,11 @@ from datetime import datetime
 from typing import Any, Final
 
 from kybercore.errors import KyberCoreError
-from kybercore.fleet.service import FleetService
 from kybercore.jobs.models import Gate, Job
 from kybercore.jobs.reasons import WhyLine
 from kybercore.jobs.service import QueueService
 from kybercore.notify.models import FleetEvent, NoiseSettings, PrinterRef
+from kybercore.notify.printers import NotifyPrinters
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +59,8 @@ class _Watch:
 class QueueChecks:
     """Plates waiting and jobs blocked, once per episode each."""
 
-    def __init__(self, fleet: FleetService, queue: QueueService) -> None:
-        self._fleet = fleet
+    def __init__(self, printers: NotifyPrinters, queue: QueueService) -> None:
+        self._printers = printers
         self._queue = queue
         self._plates: dict[str, datetime] = {}
         """Printers whose waiting plate was told, with that gate's ``since``."""
@@ -110,7 +110,7 @@ class QueueChecks:
 
     def _ref(self, printer_id: str) -> PrinterRef | None:
         try:
-            return PrinterRef.of(self._fleet.config(printer_id))
+            return self._printers.get(printer_id).ref
         except KyberCoreError:
             return None  # a gate of a printer no longer in printers.json
 

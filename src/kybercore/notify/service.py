@@ -3,21 +3,28 @@ that want them, without ever slowing the fleet down.
 
 The pipeline (the pure parts are N1's, storage and delivery N2's)::
 
-    FleetService.listen ─► observe() ─► Detector ─┐
-    tick (every ``tick`` s) ─► Detector.tick ─────┼─► NoiseFilter ─► route() per channel
-    queue checks (every ``queue_poll`` s) ────────┘      (cooldown,      ─► webcam snapshot
-                                                          storm folds)   ─► NotifyStore.record
-                                                                         ─► Outbox (retries)
+    NotifyPrinters.listen ─► Observation ─► Detector ┐
+    tick (every ``tick`` s) ─► Detector.tick ────────┼─► NoiseFilter ─► route() per channel
+    queue checks (every ``queue_poll`` s) ───────────┘      (cooldown,      ─► webcam snapshot
+                                                             storm folds)   ─► NotifyStore.record
+                                                                            ─► Outbox (retries)
 
-- The listener runs for every status update of every printer: it skips updates that touch
-  nothing a notification reads (temperatures, positions), and feeds the detector only when
-  the printer's :class:`Observation` changed. Everything else (channels, snapshots, the
+The printers are read through :class:`~kybercore.notify.printers.NotifyPrinters`: this
+process's sessions in ``kybercore serve``, the views on a front on NATS. There, every front
+has a service for the API, and only the front holding the dispatcher role runs it (one
+notifier at a time); see ``kybercore.scale.front_notify``.
+
+- The listener runs for every change of a printer that may matter (the printers skip
+  temperatures and positions), and feeds the detector only when the printer's
+  :class:`Observation` changed. Everything else (channels, snapshots, the
   database) happens in a task of its own.
 - Events are recorded in the order they happened; the snapshots they wait for are taken
   side by side. A failure anywhere here is logged and the next event goes on: a
   notification never disturbs the fleet.
 - Stopping flushes what the noise filter still holds (a fold window not yet closed) to
   the database, so a restart loses no event: the outbox sends it after the next start.
+- Starting again (on a front, taking the role back) is a restart: what was known of the
+  printers and the queue is forgotten, and their state then is the new baseline.
 """
 
 from __future__ import annotations
@@ -27,38 +34,26 @@ import logging
 import time
 from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
-from typing import Final
+from typing import Final, Protocol
 
 import httpx
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
-from kybercore.errors import ChannelNotFound, KyberCoreError
-from kybercore.fleet.service import FleetService
-from kybercore.fleet.sessions import FleetPrinter, Interest
+from kybercore.errors import ChannelNotFound
 from kybercore.jobs.service import QueueService
-from kybercore.moonraker.events import Notification, SessionEvent, StatusDelta
-from kybercore.notify.detector import Detector, Observation, observe
-from kybercore.notify.models import FleetEvent, NoiseSettings, PrinterRef
+from kybercore.notify.detector import Detector, Observation
+from kybercore.notify.models import FleetEvent, NoiseSettings
 from kybercore.notify.noise import NoiseFilter
 from kybercore.notify.outbox import Outbox
+from kybercore.notify.printers import NotifyPrinters, Observed
 from kybercore.notify.queue_checks import QueueChecks
 from kybercore.notify.records import Channel, Delivery
 from kybercore.notify.rules import Route, route
-from kybercore.notify.snapshot import take_snapshot
 from kybercore.notify.store import NotifyStore
 
 log = logging.getLogger(__name__)
 
-WATCHED_OBJECTS: Final = ("print_stats", "webhooks", "filament_switch_sensor",
-                          "filament_motion_sensor")  # fmt: skip
-"""Status objects an :class:`Observation` reads; an update touching none is skipped."""
-INTEREST: Final = Interest(
-    {"print_stats": frozenset({"state", "filename", "message", "info"}), "webhooks": None},
-    prefixes=WATCHED_OBJECTS[2:],
-)
-"""The deltas the fleet passes on: those that can change an :class:`Observation` (not
-``print_duration`` and the like, which every update carries)."""
 READS_AT_ONCE: Final = 2
 """Events reading the channels from the database at once: a bulk pause of 1,000 printers
 emits 1,000 events in one go, and their reads must not take every pooled connection (the
@@ -69,32 +64,46 @@ STOP_GRACE: Final = 5.0
 Prepared = tuple[FleetEvent, bytes | None, dict[int, Route]]
 
 
+class Peers(Protocol):
+    """The other processes serving the same notifications (fronts on NATS), of which one
+    runs the notifier: what this one changed in the database that the running one must
+    hear of."""
+
+    async def recorded(self) -> None:
+        """A delivery was recorded here (a test): the running outbox should send it now."""
+
+    async def settings_saved(self) -> None:
+        """New noise settings were saved here: the running service should use them."""
+
+
 class NotifyService:
     """Detects the fleet's events and hands them to the channels' outbox."""
 
     def __init__(
         self,
-        fleet: FleetService,
+        printers: NotifyPrinters,
         queue: QueueService,
         engine: AsyncEngine,
         http: httpx.AsyncClient,
         *,
+        peers: Peers | None = None,
         tick: float = 1.0,
         queue_poll: float = 15.0,
         outbox_options: Mapping[str, float] | None = None,
     ) -> None:
-        """``tick``: seconds between offline-grace checks and fold-window releases;
-        ``queue_poll``: seconds between queue checks; ``outbox_options`` go to
+        """``peers``: the other processes serving these notifications, if any (see
+        :class:`Peers`); ``tick``: seconds between offline-grace checks and fold-window
+        releases; ``queue_poll``: seconds between queue checks; ``outbox_options`` go to
         :class:`Outbox` (its retry timing)."""
-        self.fleet = fleet
+        self.printers = printers
         self.queue = queue
         self.store = NotifyStore(engine)
         self.outbox = Outbox(self.store, http, **(outbox_options or {}))
         self.settings = NoiseSettings()
         self.ticks = 0
         """Ticks completed (tests wait on it rather than on the clock)."""
-        self.checks = QueueChecks(fleet, queue)
-        self._http = http
+        self.checks = QueueChecks(printers, queue)
+        self._peers = peers
         self._tick = tick
         self._queue_poll = queue_poll
         self._detector = Detector(self.settings)
@@ -111,11 +120,17 @@ class NotifyService:
     async def start(self) -> None:
         """Load the settings, start the outbox (it sends what a previous run left), take
         every printer's state as the baseline (a restart is silent), start listening."""
-        await self._use(await self.store.settings())
+        # Started again (a front taking the role back), nothing known before counts: the
+        # printers and the queue may have changed meanwhile, unheard.
+        self._detector = Detector(self.settings)
+        self._noise = NoiseFilter(self.settings)
+        self._seen = {}
+        self.checks = QueueChecks(self.printers, self.queue)
+        await self.reload_settings()
         await self.outbox.start()
-        for printer in self.fleet.sessions.all():
+        for printer in self.printers.all():
             self._observe(printer)
-        self._unlisten = self.fleet.listen(self._on_event, INTEREST)
+        self._unlisten = self.printers.listen(self._on_change)
         self._recording = asyncio.create_task(self._recorder(), name="notify-recorder")
         self._loops = [
             asyncio.create_task(self._ticker(), name="notify-tick"),
@@ -160,12 +175,21 @@ class NotifyService:
         if not pending:  # removed meanwhile
             raise ChannelNotFound(channel_id)
         self.outbox.wake()
+        if self._peers is not None:
+            await self._peers.recorded()
         return await self.outbox.wait_outcome(pending[0], wait)
 
     async def apply_settings(self, settings: NoiseSettings) -> None:
-        """Store new noise settings and use them from now on."""
+        """Store new noise settings and use them from now on (and have the running service
+        use them, when that is another process's)."""
         await self.store.save_settings(settings)
         await self._use(settings)
+        if self._peers is not None:
+            await self._peers.settings_saved()
+
+    async def reload_settings(self) -> None:
+        """Use the noise settings saved last (another process may have saved them)."""
+        await self._use(await self.store.settings())
 
     async def _use(self, settings: NoiseSettings) -> None:
         self.settings = settings
@@ -174,27 +198,21 @@ class NotifyService:
 
     # -- detection ---------------------------------------------------------------------
 
-    def _on_event(self, printer_id: str, event: SessionEvent) -> None:
-        """The fleet's listener: cheap, and never raising into the fleet."""
-        if isinstance(event, Notification):
-            return
-        if isinstance(event, StatusDelta) and not any(
-            name.startswith(WATCHED_OBJECTS) for name in event.delta
-        ):
-            return
+    def _on_change(self, printer_id: str) -> None:
+        """The printers' listener: cheap, and never raising into the fleet."""
         try:
-            self._observe(self.fleet.sessions.get(printer_id))
+            self._observe(self.printers.get(printer_id))
         except Exception:
             log.exception("%s: notifications could not read this change", printer_id)
 
-    def _observe(self, printer: FleetPrinter) -> None:
-        observation = observe(printer.live)
-        printer_id = printer.config.id
+    def _observe(self, printer: Observed) -> None:
+        observation = printer.observation
+        printer_id = printer.ref.id
         if self._seen.get(printer_id) == observation:
             return
         self._seen[printer_id] = observation
-        ref = PrinterRef.of(printer.config)
-        for event in self._detector.observe(ref, observation, time.monotonic(), _utcnow()):
+        now, at = time.monotonic(), _utcnow()
+        for event in self._detector.observe(printer.ref, observation, now, at):
             self._push(event)
 
     def _push(self, event: FleetEvent) -> None:
@@ -212,7 +230,7 @@ class NotifyService:
 
     def _tick_once(self) -> None:
         now, at = time.monotonic(), _utcnow()
-        present = {printer.config.id for printer in self.fleet.sessions.all()}
+        present = {printer.ref.id for printer in self.printers.all()}
         for gone in [pid for pid in self._seen if pid not in present]:
             del self._seen[gone]
             self._detector.forget(gone)
@@ -248,27 +266,13 @@ class NotifyService:
         routes = {c.id: route(c.rules, event, local) for c in channels}
         routes = {cid: how for cid, how in routes.items() if how != "skip"}
         snapshot = None
-        if self._wants_snapshot(event, channels, routes):
-            snapshot = await self._snapshot(event)
+        if event.printer is not None and self._wants_snapshot(channels, routes):
+            snapshot = await self.printers.snapshot(event.printer.id)
         return event, snapshot, routes
 
     @staticmethod
-    def _wants_snapshot(
-        event: FleetEvent, channels: list[Channel], routes: Mapping[int, Route]
-    ) -> bool:
-        return event.printer is not None and any(
-            routes.get(c.id) == "deliver" and c.rules.attach_snapshot for c in channels
-        )
-
-    async def _snapshot(self, event: FleetEvent) -> bytes | None:
-        assert event.printer is not None
-        try:
-            printer = self.fleet.sessions.get(event.printer.id)
-        except KyberCoreError:
-            return None
-        if printer.client is None or printer.live.connection != "online":
-            return None  # an offline printer's webcam is as far away as its Moonraker
-        return await take_snapshot(printer.client, printer.config.moonraker_url, self._http)
+    def _wants_snapshot(channels: list[Channel], routes: Mapping[int, Route]) -> bool:
+        return any(routes.get(c.id) == "deliver" and c.rules.attach_snapshot for c in channels)
 
     async def _recorder(self) -> None:
         while (prepared := await self._pipeline.get()) is not None:

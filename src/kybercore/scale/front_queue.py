@@ -10,26 +10,32 @@ settles the starts it left half done from the printers, as after a crash.
 
 Every change a front commits is published on ``kc.queue.changed``; the other fronts pass it
 on to their browsers, and the dispatching front plans again, as it does for its own.
+
+The role's holder also runs the notifications (:mod:`.front_notify`): one notifier for the
+fleet, started after the queue and stopped before it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Mapping, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import httpx
 from nats.aio.msg import Msg
 from nats.aio.subscription import Subscription
+from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
+from kybercore.notify.service import NotifyService
 from kybercore.scale.front import FrontFleet
+from kybercore.scale.front_notify import FrontNotify, FrontNotifyPrinters, NatsPeers
 from kybercore.scale.jobfiles import SharedJobFiles
 from kybercore.scale.leader import Leadership
 from kybercore.scale.queue import FrontPrinters
@@ -41,10 +47,21 @@ CHANGED_SUBJECT: Final = "kc.queue.changed"
 ROLE: Final = "dispatcher"
 
 
+class Duty(Protocol):
+    """More work of the role's holder than the queue's (the notifier)."""
+
+    async def start(self) -> None:
+        """Start it (the role was taken)."""
+
+    async def stop(self) -> None:
+        """Stop it (the role was lost or handed back); also when it did not start."""
+
+
 @dataclass(frozen=True)
 class Front:
     """What ``kybercore front`` hands the app (:class:`kybercore.api.app.Front`): the fleet
-    followed from NATS, the queue's printers reached by command, and the queue shared."""
+    followed from NATS, the queue's printers reached by command, and the queue and the
+    notifications shared."""
 
     nats_url: str
     slots: int
@@ -67,28 +84,61 @@ class Front:
         files = SharedJobFiles(folder, fleet.nc)
         return QueueService(fleet, store, files, printers=FrontPrinters(fleet), **options)
 
-    @asynccontextmanager
-    async def serving(self, fleet: FleetService, queue: QueueService) -> AsyncIterator[None]:
-        """Share the queue and contend for the dispatcher role while the app serves."""
+    def notify(
+        self,
+        fleet: FleetService,
+        queue: QueueService,
+        engine: AsyncEngine,
+        http: httpx.AsyncClient,
+        options: Mapping[str, Any],
+    ) -> NotifyService:
+        """The notifications as this front serves them: printers read from its views, and
+        what it changes told to the front running them (:mod:`.front_notify`)."""
         assert isinstance(fleet, FrontFleet)
-        shared = FrontQueue(fleet, queue, name=self.name, ttl=self.ttl)
-        await shared.start()
+        printers = FrontNotifyPrinters(fleet)
+        return NotifyService(printers, queue, engine, http, peers=NatsPeers(fleet), **options)
+
+    @asynccontextmanager
+    async def serving(
+        self, fleet: FleetService, queue: QueueService, notify: NotifyService
+    ) -> AsyncIterator[None]:
+        """Share the queue and the notifications, and contend for the dispatcher role
+        (dispatching and notifying while held), while the app serves."""
+        assert isinstance(fleet, FrontFleet)
+        notifying = FrontNotify(fleet, notify)
+        shared = FrontQueue(fleet, queue, name=self.name, ttl=self.ttl, duties=(notify,))
+        await notifying.start()
         try:
-            yield
+            await shared.start()
+            try:
+                yield
+            finally:
+                await shared.stop()
         finally:
-            await shared.stop()
+            await notifying.stop()
 
 
 class FrontQueue:
     """One front's part in the queue; see the module docstring."""
 
-    def __init__(self, fleet: FrontFleet, queue: QueueService, *, name: str, ttl: float) -> None:
-        """``name``: this front's, unique among them; ``ttl``: of the dispatcher role."""
+    def __init__(
+        self,
+        fleet: FrontFleet,
+        queue: QueueService,
+        *,
+        name: str,
+        ttl: float,
+        duties: Sequence[Duty] = (),
+    ) -> None:
+        """``name``: this front's, unique among them; ``ttl``: of the dispatcher role;
+        ``duties``: more work of the role's holder, started after the queue, in order, and
+        stopped before it, in reverse."""
         self._fleet = fleet
         self._queue = queue
+        self._duties = (queue, *duties)
         self.name = name
         self.leadership = Leadership(
-            fleet.nc, ROLE, name, ttl=ttl, on_gain=queue.start, on_loss=queue.stop
+            fleet.nc, ROLE, name, ttl=ttl, on_gain=self._gain, on_loss=self._lose
         )
         self._subscription: Subscription | None = None
         self._sending: set[asyncio.Task[None]] = set()
@@ -107,6 +157,19 @@ class FrontQueue:
         if self._subscription is not None:
             await self._subscription.unsubscribe()
         await asyncio.gather(*self._sending, return_exceptions=True)
+
+    async def _gain(self) -> None:
+        # One that fails to start fails the gain: the leadership stops them all (_lose)
+        # and hands the role back, to be tried again.
+        for duty in self._duties:
+            await duty.start()
+
+    async def _lose(self) -> None:
+        for duty in reversed(self._duties):
+            try:
+                await duty.stop()
+            except Exception:  # the others must stop all the same
+                log.exception("%s: a duty of the %s role failed to stop", self.name, ROLE)
 
     def _committed(self, kind: str, payload: dict[str, Any]) -> None:
         self._queue.changed(kind, payload)
