@@ -59,8 +59,8 @@ Database = Annotated[AsyncEngine, Depends(database)]
 
 
 def started(connection: HTTPConnection, name: str, what: str) -> Any:
-    """The app's ``name`` service; a front on NATS runs only the fleet, so the others
-    answer that ``what`` is not available there (never a 500)."""
+    """The app's ``name`` service; one a front on NATS does not run (the ledger, which its
+    workers write) answers that ``what`` is not available there (never a 500)."""
     service = getattr(connection.app.state, name, None)
     if service is None:
         raise not_on_front(what)
