@@ -14,11 +14,11 @@ from nats.errors import ConnectionClosedError
 
 from kybercore.core.view import LivePrinter, facts, fuse
 from kybercore.errors import OutcomeUnknown, PrinterUnreachable, UnknownPrinter
-from kybercore.jobs.printers import Change, QueuePrinters, shown_of
+from kybercore.jobs.printers import Change, QueuePrinters, heat_of, shown_of
 from kybercore.jobs.tracker import from_history, seen
 from kybercore.registry.models import PrinterConfig
 from kybercore.scale.front import FrontFleet
-from kybercore.scale.queue import FrontPrinters, changes_of, shown_of_view
+from kybercore.scale.queue import FrontPrinters, changes_of, heaters_of, shown_of_view
 from kybercore.scale.slots import slot_of
 
 SLOTS = 4
@@ -101,6 +101,7 @@ def test_a_view_shows_what_the_live_state_shows(live: LivePrinter) -> None:
     if expected.print_duration is None:  # no status yet: the view says 0 (see below)
         expected = dataclasses.replace(expected, print_duration=0.0)
     assert shown_of_view(fuse(config("p"), live)) == expected
+    assert heat_of(heaters_of(fuse(config("p"), live))) == heat_of(live.status)
 
 
 def test_what_a_view_shows_differs_where_the_view_says_less() -> None:

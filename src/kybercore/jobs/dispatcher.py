@@ -290,7 +290,7 @@ class Dispatcher:
                 f"{printer} accepted the start but was not printing '{name}' within "
                 f"{self.start_within:g} s{lost}",
             )
-        if _heats(job) and not self._printers.shown(printer).target_set:
+        if _heats(job) and not self._printers.heat(printer).target_set:
             loop_now = asyncio.get_running_loop().time()
             self._warming[printer] = loop_now + self.start_within
         job_id = self._tracker.job_id(name)
@@ -323,12 +323,12 @@ class Dispatcher:
     def _heaters_changed(self, printer_id: str) -> None:
         if self.heating_budget is None:
             return
-        shown = self._printers.shown(printer_id)
-        if printer_id in self._warming and shown.target_set:
+        heat = self._printers.heat(printer_id)
+        if printer_id in self._warming and heat.target_set:
             del self._warming[printer_id]  # the printer's own heating counts from now on
             self.wake()
-        if self._heating.get(printer_id) != shown.heating:
-            self._heating[printer_id] = shown.heating
+        if self._heating.get(printer_id) != heat.heating:
+            self._heating[printer_id] = heat.heating
             self.wake()
 
 

@@ -16,7 +16,7 @@ import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal, Protocol
+from typing import Any, Final, Literal, NamedTuple, Protocol
 
 from kybercore.core.numbers import finite_number
 from kybercore.core.validation import PrinterFacts
@@ -63,6 +63,12 @@ class Shown:
     print_duration: float | None
     message: str
     """``print_stats.message``: why a print stopped."""
+
+
+class Heat(NamedTuple):
+    """A printer's heaters, as the heating budget weighs them. Apart from :class:`Shown`
+    because it is read on every temperature update (a NamedTuple: cheap to build)."""
+
     heating: bool
     """Heating toward a target (see :func:`kybercore.jobs.heating.is_heating`)."""
     target_set: bool
@@ -86,6 +92,9 @@ class QueuePrinters(Protocol):
 
     def shown(self, printer_id: str) -> Shown:
         """What the printer shows now; UnknownPrinter when it is not configured."""
+
+    def heat(self, printer_id: str) -> Heat:
+        """What the printer's heaters do now; UnknownPrinter when it is not configured."""
 
     def listen(self, on_change: OnChange) -> Callable[[], None]:
         """Call ``on_change`` on each change that matters; returns the way to stop."""
@@ -137,9 +146,12 @@ def shown_of(live: LivePrinter) -> Shown:
         state=str(stats.get("state") or ""),
         print_duration=finite_number(stats.get("print_duration")),
         message=str(stats.get("message") or ""),
-        heating=is_heating(status),
-        target_set=target_set(status),
     )
+
+
+def heat_of(status: Status) -> Heat:
+    """What the heaters in ``status`` (Klipper's object names) do."""
+    return Heat(is_heating(status), target_set(status))
 
 
 def target_set(status: Status) -> bool:
@@ -166,6 +178,10 @@ class FleetPrinters:
     def shown(self, printer_id: str) -> Shown:
         """What the printer shows now."""
         return shown_of(self._fleet.sessions.get(printer_id).live)
+
+    def heat(self, printer_id: str) -> Heat:
+        """What the printer's heaters do now."""
+        return heat_of(self._fleet.sessions.get(printer_id).live.status)
 
     def listen(self, on_change: OnChange) -> Callable[[], None]:
         """Call ``on_change`` on each change that matters; returns the way to stop."""

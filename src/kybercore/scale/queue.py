@@ -30,14 +30,14 @@ import nats.errors
 from kybercore.core.numbers import finite_number
 from kybercore.core.view import facts_of_view
 from kybercore.errors import PrinterUnreachable
-from kybercore.jobs.heating import is_heating
 from kybercore.jobs.printers import (
     Change,
+    Heat,
     OnChange,
     OnHistoryJob,
     QueuePrinter,
     Shown,
-    target_set,
+    heat_of,
 )
 from kybercore.scale.front import FrontFleet
 from kybercore.scale.jobfiles import JobFileBucket
@@ -68,7 +68,7 @@ def changes_of(patch: Mapping[str, Any] | None) -> list[Change]:
 
 def heaters_of(view: Mapping[str, Any]) -> dict[str, Any]:
     """The view's heaters under Klipper's object names, for the queue's heater rules
-    (:func:`~kybercore.jobs.heating.is_heating`, :func:`target_set`)."""
+    (:func:`~kybercore.jobs.printers.heat_of`)."""
     return {"extruder": view.get("extruder") or {}, "heater_bed": view.get("bed") or {}}
 
 
@@ -76,10 +76,8 @@ def shown_of_view(view: Mapping[str, Any]) -> Shown:
     """What a printer's view shows the queue. Unlike :func:`~kybercore.jobs.printers.shown_of`
     on the live state: ``state`` is "" while Klippy is not ready (the view blanks it);
     ``print_duration`` is in whole seconds, 0 before a print; ``message`` falls back to the
-    display's message (M117); ``klippy_message`` is the session's; the temperatures are
-    rounded to 0.1 °C."""
+    display's message (M117); ``klippy_message`` is the session's."""
     job: Mapping[str, Any] = view.get("job") or {}
-    heaters = heaters_of(view)
     return Shown(
         connection=str(view.get("connection") or ""),
         klippy_state=str(view.get("klippy_state") or ""),
@@ -88,8 +86,6 @@ def shown_of_view(view: Mapping[str, Any]) -> Shown:
         state=str(job.get("state") or ""),
         print_duration=finite_number(job.get("print_duration")),
         message=str(job.get("message") or ""),
-        heating=is_heating(heaters),
-        target_set=target_set(heaters),
     )
 
 
@@ -107,7 +103,7 @@ class FrontPrinters:
         printers = []
         for config in self._fleet.configs():
             view = self._fleet.current_view(config.id)
-            heating = is_heating(heaters_of(view))
+            heating = heat_of(heaters_of(view)).heating
             printers.append(QueuePrinter(config, facts_of_view(config, view), heating))
         return printers
 
@@ -115,6 +111,10 @@ class FrontPrinters:
         """What the printer's view shows now (see :func:`shown_of_view`); UnknownPrinter
         when it is not in the registry."""
         return shown_of_view(self._fleet.current_view(printer_id))
+
+    def heat(self, printer_id: str) -> Heat:
+        """What the printer's heaters do in its view (temperatures rounded to 0.1 °C)."""
+        return heat_of(heaters_of(self._fleet.current_view(printer_id)))
 
     def listen(self, on_change: OnChange) -> Callable[[], None]:
         """Call ``on_change`` for each change of a view that matters (see
