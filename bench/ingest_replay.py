@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import gc
+import importlib
 import os
 import subprocess
 import sys
@@ -77,12 +79,13 @@ async def replay(printers: int, clients: int) -> dict[str, float]:
         hub = Hub(lambda pid: sessions.render(pid))
         sessions = Sessions(http, None, hub)  # type: ignore[arg-type, unused-ignore]
         listen: Any = sessions.listen
-        try:  # the tree's dispatcher listener, as it registers (with its interest if any)
-            from kybercore.jobs.dispatcher import _INTEREST  # type: ignore[import-untyped, unused-ignore]
-
-            interest: Any = (_INTEREST,)
-        except ImportError:
-            interest = ()
+        # The tree's dispatcher listener, as it registers (with its interest if any): the
+        # queue's printers hold it since the queue ran on fronts too, the dispatcher before.
+        interest: Any = ()
+        for module in ("kybercore.jobs.printers", "kybercore.jobs.dispatcher"):
+            with contextlib.suppress(ImportError, AttributeError):
+                interest = (importlib.import_module(module)._INTEREST,)
+                break
         listen(lambda pid, _: is_heating(sessions.get(pid).live.status), *interest)
         links = []
         for index in range(printers):

@@ -280,13 +280,16 @@ def filament_runout(status: Status) -> bool:
     """An enabled filament sensor (``[filament_switch_sensor x]``, ``[filament_motion_sensor
     x]``) reports no filament. In the view because notifications read it (a pause for a
     runout says so), also on a front, which has the views but not Klipper's status."""
-    return any(
-        name.startswith(_SENSORS)
-        and isinstance(fields, dict)
-        and fields.get("enabled", True) is not False
-        and fields.get("filament_detected") is False
-        for name, fields in status.items()
-    )
+    # A loop, not any() over a generator: fuse() runs it on every update of every printer.
+    for name, fields in status.items():
+        if (
+            name.startswith(_SENSORS)
+            and isinstance(fields, dict)
+            and fields.get("enabled", True) is not False
+            and fields.get("filament_detected") is False
+        ):
+            return True
+    return False
 
 
 def _thumbnail(live: LivePrinter, meta: dict[str, Any], filename: str) -> Any:
