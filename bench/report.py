@@ -114,6 +114,8 @@ _ROWS = (
     ("start-up: all online / settled (s)", ("startup_seconds",)),
     ("ingest, KyberCore (events/s)", ("ingest_events_per_s",)),
     ("ingest, bare baseline (events/s)", ("baseline", "events_per_s")),
+    # Its connect wait is its own (60 s): on a busy machine it may count fewer printers.
+    ("bare baseline: printers connected", ("baseline", "connected")),
     ("KyberCore / baseline", ("ingest_ratio",)),
     ("load generator sent (events/s)", ("loadgen", "events_per_s")),
     ("KyberCore / load generator", ("ingest_vs_loadgen",)),
@@ -141,6 +143,8 @@ def _cell(value: Any) -> str:
             return f"{value['frames']:,} / {value['resyncs']}"
         if "settled" in value:
             settled = _cell(value["settled"]) if value["settled"] else f"not in {value['limit']:g}"
+            if value.get("online_at_limit") is not None:
+                settled += f" ({value['online_at_limit']:,} online by then)"
             return f"{_cell(value['online'])} / {settled}"
         return ", ".join(f"{key} {_cell(item)}" for key, item in value.items())
     if isinstance(value, float):
