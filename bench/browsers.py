@@ -7,8 +7,16 @@ why that value identifies the source update); the others are :class:`DrainClient
 read and drop: parsing 100 copies of the same frames would measure this process rather than
 KyberCore.
 
+With ``--views F`` (a JSON list of id lists, one per client), client i sends ``{"type":
+"view", "printers": F[i]}`` right after its snapshot, as a dashboard showing a page of tiles
+does: KyberCore then sends it full patches of those printers only and slim summaries of the
+rest. A client counts as ready once a delta carries its ``full`` part (the view is in
+effect), and a measuring client observes only those full patches: the slim summaries carry
+no ``print_duration``.
+
 ``python -m bench.browsers --url ws://127.0.0.1:PORT/ws --clients M --seconds S --out F``
-prints ``{"ready": true, "connected": k}`` once every client has its snapshot, then, after S
+prints ``{"ready": true, "connected": k}`` once every client has its snapshot (and its view
+is in effect), then, after S
 seconds, writes F: ``{"frames", "bytes", "resyncs", "cpu_seconds", "observations":
 [{"printer", "value", "t"}]}``, one observation list per measuring client: printer id,
 print duration, monotonic time of arrival.
@@ -43,27 +51,41 @@ class Tally:
     observations: list[dict[str, list[Any]]] = field(default_factory=list)
 
 
-async def measure(url: str, tally: Tally, ready: asyncio.Future[None]) -> None:
-    """A measuring browser: snapshot first, then deltas until cancelled."""
+async def measure(
+    url: str, tally: Tally, ready: asyncio.Future[None], view: list[str] | None = None
+) -> None:
+    """A measuring browser: snapshot first, then deltas until cancelled. With ``view``, it
+    shows those printers: ready, and observing, once a delta carries their full patches."""
     seen: dict[str, list[Any]] = {"printer": [], "value": [], "t": []}
     tally.observations.append(seen)
     async with websockets.connect(url, compression=None, max_size=None, proxy=None) as ws:
         await ws.recv(decode=False)  # the snapshot
-        ready.set_result(None)
+        if view is None:
+            ready.set_result(None)
+        else:
+            # A text frame: KyberCore reads the view with receive_json (text mode).
+            await ws.send(orjson.dumps({"type": "view", "printers": view}).decode())
         while True:
             frame = await ws.recv(decode=False)
             received = time.monotonic()
             tally.frames += 1
             tally.bytes += len(frame)
             message = orjson.loads(frame)
-            if message.get("type") == "snapshot":
+            kind = message.get("type")
+            if kind == "snapshot":
                 tally.resyncs += 1  # overflowed: KyberCore replaced the backlog
-            elif message.get("type") == "delta":
-                _observe(message, received, seen)
+            elif kind == "delta" and view is None:
+                _observe(message["printers"], received, seen)
+            elif kind == "delta" and "full" in message:
+                if not ready.done():
+                    ready.set_result(None)
+                _observe(message["full"], received, seen)
+            # A delta without "full" while showing a view was sent before KyberCore applied
+            # the view (every printer in full): not the regime being measured.
 
 
-def _observe(delta: dict[str, Any], received: float, seen: dict[str, list[Any]]) -> None:
-    for printer_id, patch in delta["printers"].items():
+def _observe(patches: dict[str, Any], received: float, seen: dict[str, list[Any]]) -> None:
+    for printer_id, patch in patches.items():
         duration = (patch.get("job") or {}).get("print_duration")
         if duration is not None:
             seen["printer"].append(printer_id)
@@ -71,18 +93,26 @@ def _observe(delta: dict[str, Any], received: float, seen: dict[str, list[Any]])
             seen["t"].append(received)
 
 
-async def run(url: str, clients: int, seconds: float, connect_timeout: float) -> dict[str, Any]:
-    """Connect ``clients`` browsers, say so, then listen for ``seconds``."""
+async def run(
+    url: str,
+    clients: int,
+    seconds: float,
+    connect_timeout: float,
+    views: list[list[str]] | None = None,
+) -> dict[str, Any]:
+    """Connect ``clients`` browsers, say so, then listen for ``seconds``. ``views``: the
+    printers each client shows (None: every client gets the whole fleet in full)."""
     loop = asyncio.get_running_loop()
     tally = Tally()
     measuring = min(clients, MEASURING_CLIENTS)
     ready = [loop.create_future() for _ in range(clients)]
-    tasks = [asyncio.create_task(measure(url, tally, ready[i])) for i in range(measuring)]
+    shown: list[list[str] | None] = list(views) if views is not None else [None] * clients
+    tasks = [asyncio.create_task(measure(url, tally, ready[i], shown[i])) for i in range(measuring)]
     parts = urlsplit(url)
     host, port = parts.hostname or "127.0.0.1", parts.port or 80
     drains: list[DrainClient] = []
-    for future in ready[measuring:]:
-        factory = functools.partial(DrainClient, host, port, future)
+    for future, view in zip(ready[measuring:], shown[measuring:], strict=True):
+        factory = functools.partial(DrainClient, host, port, future, view)
         _, drain = await loop.create_connection(factory, host, port)
         drains.append(drain)
     done, _ = await asyncio.wait(ready, timeout=connect_timeout)
@@ -114,8 +144,14 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, required=True)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--connect-timeout", type=float, default=60.0)
+    parser.add_argument(
+        "--views", type=Path, help="JSON list of the printer ids each client shows, in order"
+    )
     args = parser.parse_args()
-    result = asyncio.run(run(args.url, args.clients, args.seconds, args.connect_timeout))
+    views = orjson.loads(args.views.read_bytes()) if args.views else None
+    if views is not None and len(views) != args.clients:
+        parser.error(f"--views lists {len(views)} views for {args.clients} clients")
+    result = asyncio.run(run(args.url, args.clients, args.seconds, args.connect_timeout, views))
     args.out.write_bytes(orjson.dumps(result))
 
 

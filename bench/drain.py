@@ -5,6 +5,11 @@ dashboard would spend more CPU in this benchmark's process than KyberCore spends
 so all but the measuring clients are this: a raw :class:`asyncio.Protocol` that does the
 handshake, answers pings (uvicorn closes a client that does not), notes snapshots
 (KyberCore resends one when a client's queue overflowed) and drops the rest unread.
+
+Given a view (the printer ids it shows), it sends ``{"type": "view", "printers": [...]}``
+right after its snapshot, as a masked text frame (RFC 6455: every client frame is masked;
+KyberCore reads the message as text), and is ready once a delta carries the ``full`` part
+that only a client with a view gets: until then it still receives the whole fleet in full.
 """
 
 from __future__ import annotations
@@ -14,21 +19,31 @@ import base64
 import os
 from typing import Final
 
+import orjson
+
 from bench import wsframes
 
 SNAPSHOT: Final = b'{"type":"snapshot"'
+DELTA: Final = b'{"type":"delta"'
+# The full patches of the printers in a client's view follow the slim summaries of the
+# fleet's (see kybercore.fleet.frames.DeltaFrames.frame); no view key is named "full".
+FULL: Final = b',"full":'
 
 
 class DrainClient(asyncio.Protocol):
     """One draining browser on ``ws://host:port/ws``."""
 
-    def __init__(self, host: str, port: int, ready: asyncio.Future[None]) -> None:
+    def __init__(
+        self, host: str, port: int, ready: asyncio.Future[None], view: list[str] | None = None
+    ) -> None:
         self._request = (
             f"GET /ws HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
             "Connection: Upgrade\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: "
             f"{base64.b64encode(os.urandom(16)).decode()}\r\n\r\n"
         ).encode()
         self._ready = ready
+        self._view = None if view is None else orjson.dumps({"type": "view", "printers": view})
+        self._view_sent = False
         self._buffer = bytearray()
         self._open = False
         self._transport: asyncio.Transport | None = None
@@ -71,8 +86,20 @@ class DrainClient(asyncio.Protocol):
         self.bytes += end - start
         if self._buffer.startswith(SNAPSHOT, start):
             self.snapshots += 1
-            if not self._ready.done():
-                self._ready.set_result(None)
+            if self._view is None:
+                if not self._ready.done():
+                    self._ready.set_result(None)
+            elif not self._view_sent and self._transport is not None:
+                self._transport.write(wsframes.encode(self._view, wsframes.TEXT, os.urandom(4)))
+                self._view_sent = True
+        elif (
+            self._view_sent
+            and not self._ready.done()
+            and self._buffer.startswith(DELTA, start)
+            # Searched only until the view is in effect: one frame, not the window's.
+            and self._buffer.find(FULL, start, end) >= 0
+        ):
+            self._ready.set_result(None)
 
     def close(self) -> None:
         """Drop the connection."""

@@ -13,6 +13,8 @@
 5. S seconds with M browsers on ``/ws`` (:mod:`bench.browsers`, another process) while this
    process polls ``GET /api/printers`` every 250 ms, as a dashboard or script would
    (:mod:`bench.fleet_reader`, a bare HTTP/1.1 client, so its latency is KyberCore's);
+   every browser gets the whole fleet in full, or, with ``--show K``, shows a page of K
+   printers (browser i: printers i*K… modulo N) and gets slim summaries of the rest;
 6. a bulk pause of all N printers through ``POST /api/fleet/actions/pause``.
 
 Each phase runs once and alone, so the processes share the 2 cores only as they would in
@@ -129,27 +131,49 @@ async def _wait_for(
     return None
 
 
+async def _count(http: httpx.AsyncClient, ready: Callable[[dict[str, Any]], bool]) -> int | None:
+    """How many printers are ``ready`` now; None if KyberCore does not answer. Read once a
+    wait has run out, so that a report says how far start-up got."""
+    with contextlib.suppress(httpx.TransportError):
+        response = await http.get("/api/printers")
+        if response.status_code == 200:
+            return sum(map(ready, response.json()))
+    return None
+
+
 def _durations(views: list[dict[str, Any]]) -> dict[str, int]:
     return {view["id"]: view["job"]["print_duration"] for view in views}
+
+
+def pages(ids: list[str], clients: int, show: int) -> list[list[str]]:
+    """The printers each browser shows: browser i the K = ``show`` printers from i*K on,
+    wrapping around the fleet (100 browsers x 50 cover 5,000 printers once)."""
+    return [[ids[(i * show + j) % len(ids)] for j in range(show)] for i in range(clients)]
 
 
 async def _measure(
     pids: tuple[dict[str, int], int],
     http: httpx.AsyncClient,
     ws_url: str,
-    fleet: tuple[int, int],
+    fleet: tuple[list[str], int, int],
     seconds: float,
     work: Path,
 ) -> dict[str, Any]:
     """The measured window: browsers listening, the fleet view polled, CPU and RSS read.
-    ``pids``: KyberCore's processes by role, and the load generator's."""
+    ``pids``: KyberCore's processes by role, and the load generator's; ``fleet``: the
+    printer ids, the browsers and how many printers each shows (0: all, in full)."""
     mine, loadgen_pid = pids
-    printers, clients = fleet
+    ids, clients, show = fleet
+    printers = len(ids)
     out = work / "browsers.json"
     # Every browser first gets a snapshot of the whole fleet (~1 KB per printer).
     connect = _limit(printers) + clients
     args = ["--url", ws_url, "--clients", str(clients), "--seconds", str(seconds)]
     args += ["--connect-timeout", str(connect), "--out", str(out)]
+    if show:
+        views = work / "views.json"
+        views.write_bytes(orjson.dumps(pages(ids, clients, show)))
+        args += ["--views", str(views)]
     async with procs.child("-m", "bench.browsers", *args) as browsers:
         hello = await procs.read_json_line(browsers, connect + 10)
         # Every process's share of the 2 cores in the window: what KyberCore competes with.
@@ -202,9 +226,10 @@ async def _measure(
     }
     # Every update bumps print_duration by one: its advance is the count ingested. When the
     # fleet view did not answer twice, a measuring browser's first and last sight of each
-    # printer gives the same count (later, as it passed through the hub).
+    # printer gives the same count (later, as it passed through the hub) — unless browsers
+    # show pages: one then sees only its page's durations, not the fleet's.
     first_at, last_at, events = _advance(polls)
-    if events is None and measured["observations"]:
+    if events is None and measured["observations"] and not show:
         first_at, last_at, events = _advance(_sightings(measured["observations"][0]))
     if events is not None:
         measured["window"] = (first_at, last_at)
@@ -260,10 +285,16 @@ async def _bulk_pause(http: httpx.AsyncClient, ids: list[str]) -> dict[str, Any]
 
 
 async def run(
-    printers: int, clients: int, seconds: float, src: Path | None = None, workers: int = 0
+    printers: int,
+    clients: int,
+    seconds: float,
+    src: Path | None = None,
+    workers: int = 0,
+    show: int = 0,
 ) -> dict[str, Any]:
     """One full benchmark run; returns the figures (see :mod:`bench.report`). With
-    ``workers``, KyberCore runs distributed (:mod:`bench.cluster`) instead of ``serve``."""
+    ``workers``, KyberCore runs distributed (:mod:`bench.cluster`) instead of ``serve``;
+    with ``show``, each browser shows a page of that many printers (0: all in full)."""
     load = os.getloadavg()
     ids = [f"p{index:05d}" for index in range(printers)]
     with tempfile.TemporaryDirectory(prefix="kybercore-bench-") as tmp:
@@ -295,10 +326,11 @@ async def run(
             async with launch as (kybercore_pids, http):
                 online = await _wait_for(http, printers, _online, 2 * _limit(printers))
                 settled = await _wait_for(http, printers, _settled, 2 * _limit(printers))
+                at_limit = None if settled is not None else await _count(http, _online)
                 # Measuring a KyberCore still busy starting up would time its start-up.
                 if settled is not None:
                     ws_url = f"ws://127.0.0.1:{port}/ws"
-                    fleet = (printers, clients)
+                    fleet = (ids, clients, show)
                     pids = (kybercore_pids, loadgen.pid)
                     measured = await _measure(pids, http, ws_url, fleet, seconds, work)
                     pause = await _bulk_pause(http, ids)
@@ -310,6 +342,7 @@ async def run(
             "clients": clients,
             "seconds": seconds,
             "workers": workers,
+            "show": show,
             "kybercore_src": str(src) if src else "installed",
         },
         "host": {
@@ -321,6 +354,8 @@ async def run(
             "online": online,
             "settled": None if settled is None else (online or 0) + settled,
             "limit": 2 * _limit(printers),
+            # When start-up did not finish: printers online and printing after both waits.
+            "online_at_limit": at_limit,
         },
         "baseline": baseline,
         "idle_rss_kib": idle_rss,
@@ -349,11 +384,16 @@ def _figures(
         first_at <= t <= last_at for entry in sent_log["printers"] for t in entry["sent_at"]
     )
     ingest = measured["ingest_events_per_s"]
+    sent_rate = emitted / (last_at - first_at)
     return {
         "ingest_events_per_s": None if ingest is None else round(ingest, 1),
         "ingest_ratio": None if ingest is None else round(ingest / baseline["events_per_s"], 3),
+        # Issue 20's measure: what KyberCore consumed of what was written in the same span.
+        "ingest_vs_loadgen": None
+        if ingest is None or not sent_rate
+        else round(ingest / sent_rate, 3),
         "loadgen": {
-            "events_per_s": round(emitted / (last_at - first_at), 1),
+            "events_per_s": round(sent_rate, 1),
             "emit_lag_ms": report.spread(sent_log["lags"], 1000),
         },
         "event_to_browser_ms": report.spread(
@@ -406,14 +446,30 @@ def main() -> None:
         type=Path,
         help="benchmark the kybercore package under this folder (e.g. a patched copy's src/)",
     )
+    parser.add_argument(
+        "--show",
+        type=int,
+        default=0,
+        help="each browser shows a page of this many printers (full views; slim summaries of "
+        "the rest), browser i from printer i*K on; default: every browser gets all in full",
+    )
     args = parser.parse_args()
     if args.printers < 1 or args.clients < 1 or args.seconds <= 0:
         parser.error("--printers and --clients must be >= 1, --seconds > 0")
+    if not 0 <= args.show <= args.printers:
+        parser.error("--show must be between 0 and --printers")
     modes = [0, args.workers] if args.workers else [0]
     for workers in modes:
         results = asyncio.run(
             _cancel_on_sigterm(
-                run(args.printers, args.clients, args.seconds, args.kybercore_src, workers)
+                run(
+                    args.printers,
+                    args.clients,
+                    args.seconds,
+                    args.kybercore_src,
+                    workers,
+                    args.show,
+                )
             )
         )
         report.show(results, Console())
