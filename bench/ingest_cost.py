@@ -160,16 +160,16 @@ async def _side_by_side(
             port = procs.free_port()
             log = folder / "kybercore.log"
             kybercore = fleet_scale.kybercore(_printers_file(folder, ports), log, port, src)
-            process, http = await stack.enter_async_context(kybercore)
-            running.append((src, folder, port, process, http))
+            pids, http = await stack.enter_async_context(kybercore)
+            running.append((src, folder, port, pids["serve"], http))
             # One start-up at a time: 2 x N connections at once is a start-up benchmark.
             if await fleet_scale._wait_for(http, printers, fleet_scale._settled, limit) is None:
                 return [{"src": str(src or "installed"), "settled": False} for src in trees]
         await asyncio.sleep(SETTLE_SECONDS)
         windows = await asyncio.gather(
             *(
-                _window(process.pid, port, printers, clients, seconds, folder)
-                for _, folder, port, process, _ in running
+                _window(pid, port, printers, clients, seconds, folder)
+                for _, folder, port, pid, _ in running
             )
         )
     return [
