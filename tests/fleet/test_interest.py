@@ -16,7 +16,7 @@ from kybercore.moonraker.events import (
     StatusDelta,
     StatusSnapshot,
 )
-from kybercore.notify import service as notify
+from kybercore.notify import printers as notify
 from kybercore.registry.models import PrinterConfig
 
 TEMPERATURES = {"extruder": {"temperature": 210.3}, "heater_bed": {"temperature": 60.1}}
