@@ -169,23 +169,27 @@ def create_app(
                 queue = QueueService(
                     service, JobStore(engine), JobFiles(folder / "files"), **(queue_options or {})
                 )
-                await service.start()
-                await queue.start()
                 app.state.service = service
                 app.state.queue = queue
                 # -- the ledger (issue 17): history, state timeline, /metrics --------
                 ledger = LedgerService(service, engine)
-                await ledger.start()
                 app.state.ledger = ledger
-                # ---------------------------------------------------------------------
                 # -- notifications (issue 18): events to webhooks and Apprise ---------
                 printers = FleetNotifyPrinters(service, http)
                 notify = NotifyService(printers, queue, engine, http, **(notify_options or {}))
-                await notify.start()
                 app.state.notify = notify
                 # ---------------------------------------------------------------------
-                started = asyncio.create_task(on_started(service, queue)) if on_started else None
+                # What listens starts before the printers connect: at N = 5,000 the steps
+                # awaited once 20,000 status updates a second flowed never ended, and the
+                # HTTP port (opened after them) never opened. Each hears the connects.
+                await queue.start()
+                await ledger.start()
+                await notify.start()
+                started = None
                 try:
+                    await service.start()
+                    if on_started is not None:
+                        started = asyncio.create_task(on_started(service, queue))
                     yield
                 finally:
                     await cancel_and_wait(started)
