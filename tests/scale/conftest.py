@@ -3,15 +3,17 @@ workers, a front), one shared by a module's tests, or one with a real PostgreSQL
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from kybercore.sim.stack import PrinterStack
+from kybercore.sim.stack import PrinterStack, free_port
 from tests.db.postgres import PostgresServer, PostgresUnavailable
+from tests.helpers import KyberCoreServer
 from tests.jobs.conftest import postgres_server, unavailable
-from tests.scale.cluster import Cluster, fresh_cluster
+from tests.scale.cluster import SLOTS, TTL, Cluster, fresh_cluster
 
 __all__ = ["postgres_server"]
 
@@ -34,6 +36,25 @@ def shared_cluster(
     """Two workers and a front on a broker of their own, sharing ``shared_database``."""
     with fresh_cluster(fleet_stacks, tmp_path, shared_database) as started:
         yield started
+
+
+@pytest.fixture
+def front_b(
+    shared_cluster: Cluster, tmp_path: Path, shared_database: str
+) -> Iterator[KyberCoreServer]:
+    """Another front on ``shared_cluster``'s broker and database, with its own disk: started
+    after the cluster's (which holds the roles first), stopped after the test."""
+    folder = tmp_path / "front-b"
+    folder.mkdir()
+    shutil.copy(shared_cluster.folder / "printers.json", folder / "printers.json")
+    front = KyberCoreServer(
+        folder / "printers.json", free_port(), "--nats", shared_cluster.broker.url,
+        "--slots", str(SLOTS), "--database-url", shared_database, "--front-id", "front-b",
+        "--lease-ttl", str(TTL), command="front",
+    )  # fmt: skip
+    front.start()
+    yield front
+    front.stop()
 
 
 @pytest.fixture(scope="module")

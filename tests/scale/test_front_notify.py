@@ -5,21 +5,19 @@ receiver on loopback."""
 
 from __future__ import annotations
 
-import asyncio
 import os
 import signal
-from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
 from kybercore.sim.stack import PrinterStack
-from tests.helpers import wait_for
+from tests.helpers import KyberCoreServer, wait_for
 from tests.notify.live_notify import kinds, received
 from tests.notify.receiver import Receiver
 from tests.scale.cluster import Cluster
-from tests.scale.test_front_queue import PRINT_WITHIN, SHORT, TAKEOVER, second_front
+from tests.scale.test_front_queue import PRINT_WITHIN, SHORT, TAKEOVER
 
 pytestmark = pytest.mark.integration
 
@@ -48,102 +46,90 @@ def webhook(receiver: Receiver, printer: str, *events: str) -> dict[str, Any]:
 async def test_a_channel_added_on_any_front_is_served_by_the_one_notifier(
     shared_cluster: Cluster,
     fleet_stacks: list[PrinterStack],
-    tmp_path: Path,
-    shared_database: str,
+    front_b: KyberCoreServer,
     receiver: Receiver,
 ) -> None:
-    cluster = shared_cluster
+    cluster, other = shared_cluster, front_b
     printer = fleet_stacks[0].options.name
-    other = second_front(cluster, tmp_path / "front-b", shared_database)
-    await asyncio.to_thread(other.start)
-    try:
-        async with (
-            httpx.AsyncClient(base_url=cluster.front.url, timeout=60) as a,
-            httpx.AsyncClient(base_url=other.url, timeout=60) as b,
-        ):
-            # Front A (first up) holds the role; front B only serves the API.
-            await wait_for(lambda: HOLDER in cluster.front.log.read_text(), TAKEOVER, "A holds")
+    async with (
+        httpx.AsyncClient(base_url=cluster.front.url, timeout=60) as a,
+        httpx.AsyncClient(base_url=other.url, timeout=60) as b,
+    ):
+        # Front A (first up) holds the role; front B only serves the API.
+        await wait_for(lambda: HOLDER in cluster.front.log.read_text(), TAKEOVER, "A holds")
 
-            # The settings and the channel, set on front B, are front A's too.
-            settings = await call(b, "GET", "/api/notifications/settings")
-            put = {**settings, "cooldown_s": 0}
-            assert (await call(b, "PUT", "/api/notifications/settings", json=put)) == put
-            assert (await call(a, "GET", "/api/notifications/settings")) == put
-            events = ("print_started", "print_completed")
-            channel = await call(
-                b, "POST", "/api/notifications/channels", json=webhook(receiver, printer, *events)
-            )
-            assert [c["id"] for c in await call(a, "GET", "/api/notifications/channels")] == [
-                channel["id"]
-            ]
+        # The settings and the channel, set on front B, are front A's too.
+        settings = await call(b, "GET", "/api/notifications/settings")
+        put = {**settings, "cooldown_s": 0}
+        assert (await call(b, "PUT", "/api/notifications/settings", json=put)) == put
+        assert (await call(a, "GET", "/api/notifications/settings")) == put
+        events = ("print_started", "print_completed")
+        channel = await call(
+            b, "POST", "/api/notifications/channels", json=webhook(receiver, printer, *events)
+        )
+        assert [c["id"] for c in await call(a, "GET", "/api/notifications/channels")] == [
+            channel["id"]
+        ]
 
-            # A test from front B is recorded there and sent by front A's outbox; B answers
-            # how it went.
-            tested = await call(b, "POST", f"/api/notifications/channels/{channel['id']}/test")
-            assert tested["status"] == "delivered", tested
-            assert kinds(receiver) == ["test"]
+        # A test from front B is recorded there and sent by front A's outbox; B answers
+        # how it went.
+        tested = await call(b, "POST", f"/api/notifications/channels/{channel['id']}/test")
+        assert tested["status"] == "delivered", tested
+        assert kinds(receiver) == ["test"]
 
-            # Two prints on a worker's printer, back to back. Each is told once (one notifier
-            # however many fronts), and the second too: front A uses the cooldown of 0 that
-            # front B saved (with the default, 300 s, it would not be told).
-            for copy in (1, 2):
-                name = f"notify-front-{copy}.gcode"
-                started = await call(
-                    b, "POST", f"/api/printers/{printer}/files",
-                    files={"file": (name, SHORT)}, data={"start": "true", "confirm": "true"},
-                )  # fmt: skip
-                assert started["started"], started
+        # Two prints on a worker's printer, back to back. Each is told once (one notifier
+        # however many fronts), and the second too: front A uses the cooldown of 0 that
+        # front B saved (with the default, 300 s, it would not be told).
+        for copy in (1, 2):
+            name = f"notify-front-{copy}.gcode"
+            started = await call(
+                b, "POST", f"/api/printers/{printer}/files",
+                files={"file": (name, SHORT)}, data={"start": "true", "confirm": "true"},
+            )  # fmt: skip
+            assert started["started"], started
 
-                def completed(count: int = copy) -> bool:
-                    return kinds(receiver).count("print_completed") == count
+            def completed(count: int = copy) -> bool:
+                return kinds(receiver).count("print_completed") == count
 
-                await wait_for(completed, PRINT_WITHIN, f"print {copy} told complete")
-            await wait_for(lambda: all_sent(a), TOLD_WITHIN, "every delivery sent")
+            await wait_for(completed, PRINT_WITHIN, f"print {copy} told complete")
+        await wait_for(lambda: all_sent(a), TOLD_WITHIN, "every delivery sent")
 
-            assert kinds(receiver) == ["test", *events, *events]
-            for told in received(receiver)[1:]:
-                assert told["printer"]["id"] == printer
-                # The picture of the printer's webcam, fetched through its owner.
-                assert told["snapshot"]["filename"] == f"{printer}.jpg"
-            log = await call(b, "GET", "/api/notifications/deliveries")
-            assert sorted(d["kind"] for d in log) == sorted(["test", *events, *events])
-            assert HOLDER not in other.log.read_text()
-    finally:
-        await asyncio.to_thread(other.stop)
+        assert kinds(receiver) == ["test", *events, *events]
+        for told in received(receiver)[1:]:
+            assert told["printer"]["id"] == printer
+            # The picture of the printer's webcam, fetched through its owner.
+            assert told["snapshot"]["filename"] == f"{printer}.jpg"
+        log = await call(b, "GET", "/api/notifications/deliveries")
+        assert sorted(d["kind"] for d in log) == sorted(["test", *events, *events])
+        assert HOLDER not in other.log.read_text()
 
 
 async def test_when_the_notifier_dies_another_front_takes_over_and_tells_a_shutdown_once(
     shared_cluster: Cluster,
     fleet_stacks: list[PrinterStack],
-    tmp_path: Path,
-    shared_database: str,
+    front_b: KyberCoreServer,
     receiver: Receiver,
 ) -> None:
-    cluster = shared_cluster
+    cluster, other = shared_cluster, front_b
     printer = fleet_stacks[1].options.name
-    other = second_front(cluster, tmp_path / "front-b", shared_database)
-    await asyncio.to_thread(other.start)
-    try:
-        async with httpx.AsyncClient(base_url=other.url, timeout=60) as b:
-            await wait_for(lambda: HOLDER in cluster.front.log.read_text(), TAKEOVER, "A holds")
-            rules = ("klippy_shutdown", "printer_recovered")
-            hook = webhook(receiver, printer, *rules)
-            await call(b, "POST", "/api/notifications/channels", json=hook)
+    async with httpx.AsyncClient(base_url=other.url, timeout=60) as b:
+        await wait_for(lambda: HOLDER in cluster.front.log.read_text(), TAKEOVER, "A holds")
+        rules = ("klippy_shutdown", "printer_recovered")
+        hook = webhook(receiver, printer, *rules)
+        await call(b, "POST", "/api/notifications/channels", json=hook)
 
-            # Front A dies without a word; front B takes the role (a restart: the printers'
-            # state then is its baseline) and tells what happens from then on.
-            os.kill(cluster.front.pid, signal.SIGKILL)
-            await wait_for(lambda: HOLDER in other.log.read_text(), TAKEOVER, "B takes the role")
-            action = f"/api/printers/{printer}/actions"
-            await call(b, "POST", f"{action}/emergency_stop", json={"confirm": True})
-            await wait_for(lambda: "klippy_shutdown" in kinds(receiver), TOLD_WITHIN, "shutdown")
-            await call(b, "POST", f"{action}/firmware_restart", json={"confirm": True})
-            await wait_for(lambda: "printer_recovered" in kinds(receiver), PRINT_WITHIN, "back")
-            await wait_for(lambda: all_sent(b), TOLD_WITHIN, "every delivery sent")
+        # Front A dies without a word; front B takes the role (a restart: the printers'
+        # state then is its baseline) and tells what happens from then on.
+        os.kill(cluster.front.pid, signal.SIGKILL)
+        await wait_for(lambda: HOLDER in other.log.read_text(), TAKEOVER, "B takes the role")
+        action = f"/api/printers/{printer}/actions"
+        await call(b, "POST", f"{action}/emergency_stop", json={"confirm": True})
+        await wait_for(lambda: "klippy_shutdown" in kinds(receiver), TOLD_WITHIN, "shutdown")
+        await call(b, "POST", f"{action}/firmware_restart", json={"confirm": True})
+        await wait_for(lambda: "printer_recovered" in kinds(receiver), PRINT_WITHIN, "back")
+        await wait_for(lambda: all_sent(b), TOLD_WITHIN, "every delivery sent")
 
-            assert kinds(receiver) == list(rules)
-            [shutdown, recovered] = received(receiver)
-            assert shutdown["printer"]["id"] == printer
-            assert recovered["data"] == {"what": "klippy"}
-    finally:
-        await asyncio.to_thread(other.stop)
+        assert kinds(receiver) == list(rules)
+        [shutdown, recovered] = received(receiver)
+        assert shutdown["printer"]["id"] == printer
+        assert recovered["data"] == {"what": "klippy"}

@@ -8,19 +8,17 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import os
-import shutil
 import signal
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 from uuid import uuid4
 
 import httpx
 
-from kybercore.sim.stack import PrinterStack, free_port
+from kybercore.sim.stack import PrinterStack
 from tests.browser_mirror import BrowserMirror
 from tests.helpers import KyberCoreServer, travel_gcode, wait_until
-from tests.scale.cluster import SLOTS, TTL, Cluster
+from tests.scale.cluster import TTL, Cluster
 
 SHORT = travel_gcode(moves=4, feedrate=6000)
 """Homing plus 2 s of moves, no heating."""
@@ -115,17 +113,6 @@ def test_a_file_already_on_a_printer_is_queued_through_a_front(
         httpx.delete(f"{stack.url}/server/files/gcodes/{name}", timeout=30).raise_for_status()
 
 
-def second_front(cluster: Cluster, folder: Path, database_url: str) -> KyberCoreServer:
-    """Another front on the same broker and database, with its own disk."""
-    folder.mkdir()
-    shutil.copy(cluster.folder / "printers.json", folder / "printers.json")
-    return KyberCoreServer(
-        folder / "printers.json", free_port(), "--nats", cluster.broker.url,
-        "--slots", str(SLOTS), "--database-url", database_url, "--front-id", "front-b",
-        "--lease-ttl", str(TTL), command="front",
-    )  # fmt: skip
-
-
 async def queue_frames_while(
     ws_url: str, act: Callable[[], Any], until: Callable[[list[dict[str, Any]]], bool]
 ) -> list[dict[str, Any]]:
@@ -137,51 +124,45 @@ async def queue_frames_while(
 
 
 def test_fronts_share_the_queue_and_another_dispatches_when_the_first_dies(
-    shared_cluster: Cluster, fleet_stacks: list[PrinterStack], tmp_path: Path,
-    shared_database: str,
-) -> None:  # fmt: skip
-    cluster = shared_cluster
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack], front_b: KyberCoreServer
+) -> None:
+    cluster, other = shared_cluster, front_b
     printer = fleet_stacks[0].options.name
-    other = second_front(cluster, tmp_path / "front-b", shared_database)
-    other.start()
-    try:
-        # Front A (first up) dispatches; a browser on front B sees every change it makes.
-        added: dict[str, Any] = {}
+    # Front A (first up) dispatches; a browser on front B sees every change it makes.
+    added: dict[str, Any] = {}
 
-        def add() -> None:
-            upload = {"file": ("shared.gcode", SHORT)}
-            fields = {"quantity": "2", "printer": printer}
-            added.update(call(cluster, "POST", "/api/jobs", files=upload, data=fields))
+    def add() -> None:
+        upload = {"file": ("shared.gcode", SHORT)}
+        fields = {"quantity": "2", "printer": printer}
+        added.update(call(cluster, "POST", "/api/jobs", files=upload, data=fields))
 
-        def copy_ended(frames: list[dict[str, Any]]) -> bool:
-            return any(
-                f["kind"] == "attempt"
-        and f["event"] == "attempt_completed"
-        and f["attempt"]["job_id"] == added["id"]
-                for f in frames
-            )
+    def copy_ended(frames: list[dict[str, Any]]) -> bool:
+        return any(
+            f["kind"] == "attempt"
+    and f["event"] == "attempt_completed"
+    and f["attempt"]["job_id"] == added["id"]
+            for f in frames
+        )
 
-        frames = asyncio.run(queue_frames_while(other.ws_url, add, copy_ended))
-        assert any(f.get("event") == "attempt_reserved" for f in frames), frames
-        job_id = added["id"]
+    frames = asyncio.run(queue_frames_while(other.ws_url, add, copy_ended))
+    assert any(f.get("event") == "attempt_reserved" for f in frames), frames
+    job_id = added["id"]
 
-        # Front A dies without a word. Front B takes the role and dispatches copy 2, from
-        # the file front A stored (B has it from the broker, not from a disk).
-        wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 1")
-        assert "took the dispatcher role" in cluster.front.log.read_text()
-        assert "took the dispatcher role" not in other.log.read_text()
-        sha256 = added["file"]["sha256"]
-        on_disk_b = tmp_path / "front-b" / "files" / f"{sha256}.gcode"
-        assert not on_disk_b.exists()
-        os.kill(cluster.front.pid, signal.SIGKILL)
-        call(other, "POST", f"/api/printers/{printer}/clear", json={"verdict": "good"})
-        wait_until(
-            lambda: len(call(other, "GET", f"/api/jobs/{job_id}/attempts")) == 2,
-            TAKEOVER, "copy 2 dispatched by front B",
-        )  # fmt: skip
-        wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 2")
-        tried = call(other, "GET", f"/api/jobs/{job_id}/attempts")
-        assert [(a["copy"], a["state"]) for a in tried] == [(1, "completed"), (2, "completed")]
-        assert on_disk_b.exists()
-    finally:
-        other.stop()
+    # Front A dies without a word. Front B takes the role and dispatches copy 2, from
+    # the file front A stored (B has it from the broker, not from a disk).
+    wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 1")
+    assert "took the dispatcher role" in cluster.front.log.read_text()
+    assert "took the dispatcher role" not in other.log.read_text()
+    sha256 = added["file"]["sha256"]
+    on_disk_b = other.printers_file.with_name("files") / f"{sha256}.gcode"
+    assert not on_disk_b.exists()
+    os.kill(cluster.front.pid, signal.SIGKILL)
+    call(other, "POST", f"/api/printers/{printer}/clear", json={"verdict": "good"})
+    wait_until(
+        lambda: len(call(other, "GET", f"/api/jobs/{job_id}/attempts")) == 2,
+        TAKEOVER, "copy 2 dispatched by front B",
+    )  # fmt: skip
+    wait_until(lambda: gate(other, printer) == "awaiting_clear", PRINT_WITHIN, "copy 2")
+    tried = call(other, "GET", f"/api/jobs/{job_id}/attempts")
+    assert [(a["copy"], a["state"]) for a in tried] == [(1, "completed"), (2, "completed")]
+    assert on_disk_b.exists()
