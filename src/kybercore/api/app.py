@@ -86,6 +86,7 @@ from kybercore.jobs.files import JobFiles
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
+from kybercore.ledger.metrics import Source
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.http import new_http_client
 from kybercore.notify.printers import FleetNotifyPrinters
@@ -102,8 +103,8 @@ OnStarted = Callable[[FleetService, QueueService], Coroutine[Any, Any, None]]
 
 class Front(Protocol):
     """How a front on NATS (``kybercore front``, :mod:`kybercore.scale`) holds the fleet,
-    the queue and the notifications: its printers are held by workers, the database is
-    shared with the other fronts, and the ledger is written by the workers."""
+    the queue, the notifications and the metrics: its printers are held by workers, the
+    database is shared with the other fronts, and the ledger is written by the workers."""
 
     def fleet(self, http: httpx.AsyncClient) -> FleetService:
         """The fleet as this front follows it."""
@@ -125,6 +126,12 @@ class Front(Protocol):
     ) -> NotifyService:
         """The notifications as this front serves them (not started: :meth:`serving`
         runs them); ``options`` as for :class:`NotifyService`."""
+
+    def metrics(
+        self, fleet: FleetService, engine: AsyncEngine
+    ) -> AbstractAsyncContextManager[Source]:
+        """While the app serves: the figures of ``/metrics`` (``fleet`` started), from the
+        views it follows and the shared database."""
 
     def serving(
         self, fleet: FleetService, queue: QueueService, notify: NotifyService
@@ -173,7 +180,7 @@ def create_app(
                 app.state.queue = queue
                 # -- the ledger (issue 17): history, state timeline, /metrics --------
                 ledger = LedgerService(service, engine)
-                app.state.ledger = ledger
+                app.state.metrics = ledger
                 # -- notifications (issue 18): events to webhooks and Apprise ---------
                 printers = FleetNotifyPrinters(service, http)
                 notify = NotifyService(printers, queue, engine, http, **(notify_options or {}))
@@ -256,7 +263,11 @@ async def _front(
         app.state.service = service
         app.state.queue = queue
         app.state.notify = notify
-        async with front.serving(service, queue, notify):
+        async with (
+            front.metrics(service, engine) as figures,
+            front.serving(service, queue, notify),
+        ):
+            app.state.metrics = figures
             started = asyncio.create_task(on_started(service, queue)) if on_started else None
             try:
                 yield

@@ -1,7 +1,8 @@
 """``GET /metrics``: the fleet in Prometheus' text format, for a viewer token (or anyone on
 an open, loopback-only server), built from memory at scrape time
 (:mod:`kybercore.ledger.metrics`): a scrape never reaches a printer or the database, and
-its formatting runs in a worker thread."""
+its formatting runs in a worker thread. On ``serve`` the ledger holds the figures, on a
+front on NATS :class:`kybercore.scale.front_metrics.FrontMetrics`."""
 
 from __future__ import annotations
 
@@ -14,20 +15,18 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from starlette.requests import HTTPConnection
 
 from kybercore.api.deps import VIEWER, started
-from kybercore.ledger.metrics import exposition
-from kybercore.ledger.service import LedgerService
+from kybercore.ledger.metrics import Source, exposition
 
 router = APIRouter()
 
 
-def ledger_service(connection: HTTPConnection) -> LedgerService:
-    """The app's LedgerService, started by the lifespan (not on a front: the live figures
-    are in the workers)."""
-    service: LedgerService = started(connection, "ledger", "The fleet's metrics")
-    return service
+def metrics_source(connection: HTTPConnection) -> Source:
+    """The app's source of the metrics, started by the lifespan."""
+    source: Source = started(connection, "metrics", "The fleet's metrics")
+    return source
 
 
-Ledger = Annotated[LedgerService, Depends(ledger_service)]
+Figures = Annotated[Source, Depends(metrics_source)]
 
 
 @router.get(
@@ -36,8 +35,8 @@ Ledger = Annotated[LedgerService, Depends(ledger_service)]
     responses={200: {"content": {"text/plain": {}}}},
     dependencies=[VIEWER],
 )
-async def metrics(ledger: Ledger) -> Response:
+async def metrics(figures: Figures) -> Response:
     """Printers by connection and Klippy state, heaters, print progress, jobs by outcome,
-    queue depth, Moonraker reconnects, browser clients and event-loop lag."""
-    body = await asyncio.to_thread(exposition, ledger.metrics())
+    queue depth, Moonraker reconnects (not on a front), browser clients and event-loop lag."""
+    body = await asyncio.to_thread(exposition, figures.metrics())
     return Response(body, media_type=CONTENT_TYPE_LATEST)

@@ -1,9 +1,15 @@
 """``/metrics`` in Prometheus' text format, from what KyberCore already holds in memory.
 
 A scrape reads the published printer views (the very ones ``GET /api/printers`` answers
-with), the ledger's job counts and queue figures (kept up to date as they are written and
-polled), and a few counters: it never asks a printer or the database anything. They are
-copied on the event loop (:class:`Snapshot`) and formatted in a worker thread.
+with), the job counts and queue figures (kept up to date as they are written and polled,
+:mod:`.figures`), and a few counters: it never asks a printer or the database anything.
+They are copied on the event loop (:class:`Snapshot`) and formatted in a worker thread.
+
+The :class:`Source` on ``serve`` is the ledger; on a front on NATS it is
+:class:`kybercore.scale.front_metrics.FrontMetrics`, from the views the front follows. A
+view whose connection is ``stale`` (a front's printer that no worker reports now) is
+counted under that connection, and its heaters and progress, the last its owner sent, are
+left out: they are not the printer's now.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, Final, Protocol
 
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
@@ -21,6 +27,8 @@ from prometheus_client.registry import Collector
 
 HEATERS = ("extruder", "bed")
 """The heaters of a printer view (``bed`` is Klipper's ``heater_bed``)."""
+STALE: Final = "stale"
+"""The connection of a front's view whose owner has gone silent."""
 
 
 @dataclass(frozen=True)
@@ -60,6 +68,13 @@ class Snapshot:
     loop_lag: float
 
 
+class Source(Protocol):
+    """What ``/metrics`` reads: the ledger on ``serve``, the front's figures on NATS."""
+
+    def metrics(self) -> Snapshot:
+        """What ``/metrics`` shows now (a copy: format it anywhere)."""
+
+
 def exposition(snapshot: Snapshot) -> bytes:
     """The snapshot in Prometheus' text format."""
     registry = CollectorRegistry(auto_describe=False)
@@ -76,7 +91,8 @@ class _Collector(Collector):
         yield from _printer_metrics(snapshot.views)
         states = GaugeMetricFamily(
             "kybercore_printer_state",
-            "1 for the printer's state in the ledger's timeline",
+            "1 for the printer's state in the ledger's timeline (on a front on NATS: as its "
+            "owner's timeline names it from its view, or stale while no worker reports it)",
             labels=["printer", "state"],
         )
         for printer, state in sorted(snapshot.states.items()):
@@ -93,7 +109,9 @@ class _Collector(Collector):
         yield from _queue_metrics(snapshot.queue)
         reconnects = CounterMetricFamily(
             "kybercore_moonraker_reconnects",
-            "Times a printer's Moonraker session came back online after being online",
+            "Times a printer's Moonraker session came back online after being online, "
+            "counted where the session is held (none on a front on NATS: its workers hold "
+            "them)",
             labels=["printer"],
         )
         for printer, count in sorted(snapshot.reconnects.items()):
@@ -115,7 +133,8 @@ def _printer_metrics(views: list[dict[str, Any]]) -> Iterator[Metric]:
     counts = Counter((str(v["connection"]), str(v["klippy_state"])) for v in views)
     printers = GaugeMetricFamily(
         "kybercore_printers",
-        "Printers by connection and Klippy state",
+        "Printers by connection and Klippy state (connection stale: on a front on NATS, "
+        "no worker reports the printer now; its Klippy state is the last reported)",
         labels=["connection", "klippy_state"],
     )
     for (connection, klippy), count in sorted(counts.items()):
@@ -135,6 +154,8 @@ def _printer_metrics(views: list[dict[str, Any]]) -> Iterator[Metric]:
         labels=["printer", "state"],
     )
     for view in views:
+        if view["connection"] == STALE:
+            continue
         printer = str(view["id"])
         for heater in HEATERS:
             reading = view.get(heater) or {}

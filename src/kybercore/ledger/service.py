@@ -20,14 +20,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from sqlalchemy import func, select
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter, Interest
-from kybercore.jobs.tables import gates, jobs
+from kybercore.ledger.figures import LoopLag, QueueReader, poll
 from kybercore.ledger.history import (
     PAGE,
     HistoryJob,
@@ -36,7 +35,7 @@ from kybercore.ledger.history import (
     jobs_of_notification,
     read_instance,
 )
-from kybercore.ledger.metrics import QueueFigures, Snapshot
+from kybercore.ledger.metrics import Snapshot
 from kybercore.ledger.timeline import Timeline, printer_state
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
@@ -55,7 +54,6 @@ _INTEREST: Final = Interest({"print_stats": frozenset({"state"})})
 
 BACKFILLS_AT_ONCE: Final = 8
 """A thousand printers reconnecting after a restart catch up eight at a time."""
-LAG_EVERY: Final = 0.5
 
 Row = tuple[str, str, HistoryJob]
 
@@ -95,9 +93,8 @@ class LedgerService:
         self.job_counts: dict[tuple[str, str], int] = {}
         """Jobs per (printer, Moonraker status), as written: /metrics reads it."""
         self.reconnects: Counter[str] = Counter()
-        self.queue = QueueFigures()
-        self.gates: dict[str, str] = {}
-        self.loop_lag = 0.0
+        self._queue = QueueReader(engine)
+        self._lag = LoopLag()
         self.backfill_requests = 0
         """``/server/history/list`` requests made (a test counts them)."""
         self._page = page
@@ -122,13 +119,14 @@ class LedgerService:
             await self.timeline.recover()
         self.job_counts = await self.history.counts()
         self._unlisten = self.fleet.listen(self._on_event, _INTEREST)
+        queue = poll(self._queue.read, self._queue_poll, "the queue's gates and depth")
         for work, name in (
-            (self._writer, "ledger-writer"),
-            (self._sweeper, "ledger-timeline"),
-            (self._queue_reader, "ledger-queue"),
-            (self._lag_meter, "ledger-loop-lag"),
+            (self._writer(), "ledger-writer"),
+            (self._sweeper(), "ledger-timeline"),
+            (queue, "ledger-queue"),
+            (self._lag.run(), "ledger-loop-lag"),
         ):
-            self._tasks.append(asyncio.create_task(work(), name=name))
+            self._tasks.append(asyncio.create_task(work, name=name))
         # Printers online before we listened: their (re)connect was not heard.
         for printer in self._mine():
             if printer.live.connection == "online":
@@ -160,10 +158,10 @@ class LedgerService:
             views=self.fleet.views(),
             states=dict(self.timeline.current),
             jobs=self.job_counts,  # replaced, never changed in place
-            queue=self.queue,
+            queue=self._queue.figures,
             reconnects=dict(self.reconnects),
             browsers=self.fleet.hub.client_count,
-            loop_lag=self.loop_lag,
+            loop_lag=self._lag.seconds,
         )
 
     def caught_up(self, printer_id: str) -> bool:
@@ -280,12 +278,13 @@ class LedgerService:
         kept = {key: n for key, n in self.job_counts.items() if key[0] not in printers}
         self.job_counts = kept | counts
 
-    # -- timeline, queue, loop -------------------------------------------------------------
+    # -- timeline ------------------------------------------------------------------------
 
     def _observe(self, printer: FleetPrinter, at: float | None = None) -> None:
         live, pid = printer.live, printer.config.id
         print_state = str(live.status.get("print_stats", {}).get("state") or "")
-        state = printer_state(live.connection, live.klippy_state, print_state, self.gates.get(pid))
+        gate = self._queue.gates.get(pid)
+        state = printer_state(live.connection, live.klippy_state, print_state, gate)
         self.timeline.observe(pid, state, at)
 
     def _mine(self) -> list[FleetPrinter]:
@@ -318,38 +317,3 @@ class LedgerService:
                 await self.timeline.flush()
             except SQLAlchemyError:
                 log.exception("ledger: cannot write the printers' states; retrying")
-
-    async def _queue_reader(self) -> None:
-        warned = False
-        while True:
-            try:
-                await self._read_queue()
-                warned = False
-            except SQLAlchemyError as exc:
-                if not warned:
-                    log.warning("ledger: cannot read the queue's gates and depth: %s", exc)
-                warned = True
-            await asyncio.sleep(self._queue_poll)
-
-    async def _read_queue(self) -> None:
-        queued = jobs.c.state == "queued"
-        async with self.engine.connect() as conn:
-            found = await conn.execute(select(gates.c.printer, gates.c.state))
-            self.gates = {printer: state for printer, state in found}
-            count, left, oldest = (
-                await conn.execute(
-                    select(
-                        func.count(),
-                        func.sum(jobs.c.quantity - jobs.c.done - jobs.c.in_flight),
-                        func.min(jobs.c.created_at),
-                    ).where(queued)
-                )
-            ).one()
-        self.queue = QueueFigures.of(int(count or 0), int(left or 0), oldest)
-
-    async def _lag_meter(self) -> None:
-        loop = asyncio.get_running_loop()
-        while True:
-            before = loop.time()
-            await asyncio.sleep(LAG_EVERY)
-            self.loop_lag = max(0.0, loop.time() - before - LAG_EVERY)

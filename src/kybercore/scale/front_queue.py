@@ -33,8 +33,10 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 from kybercore.fleet.service import FleetService
 from kybercore.jobs.service import QueueService
 from kybercore.jobs.store import JobStore
+from kybercore.ledger.metrics import Source
 from kybercore.notify.service import NotifyService
 from kybercore.scale.front import FrontFleet
+from kybercore.scale.front_metrics import FrontMetrics
 from kybercore.scale.front_notify import FrontNotify, FrontNotifyPrinters, NatsPeers
 from kybercore.scale.jobfiles import SharedJobFiles
 from kybercore.scale.leader import Leadership
@@ -60,8 +62,8 @@ class Duty(Protocol):
 @dataclass(frozen=True)
 class Front:
     """What ``kybercore front`` hands the app (:class:`kybercore.api.app.Front`): the fleet
-    followed from NATS, the queue's printers reached by command, and the queue and the
-    notifications shared."""
+    followed from NATS, the queue's printers reached by command, the queue and the
+    notifications shared, and the metrics' figures."""
 
     nats_url: str
     slots: int
@@ -97,6 +99,18 @@ class Front:
         assert isinstance(fleet, FrontFleet)
         printers = FrontNotifyPrinters(fleet)
         return NotifyService(printers, queue, engine, http, peers=NatsPeers(fleet), **options)
+
+    @asynccontextmanager
+    async def metrics(self, fleet: FleetService, engine: AsyncEngine) -> AsyncIterator[Source]:
+        """The figures of this front's ``/metrics`` (:mod:`.front_metrics`), read in the
+        background from its views and the shared database while the app serves."""
+        assert isinstance(fleet, FrontFleet)
+        figures = FrontMetrics(fleet, engine)
+        await figures.start()
+        try:
+            yield figures
+        finally:
+            await figures.stop()
 
     @asynccontextmanager
     async def serving(

@@ -1,0 +1,114 @@
+"""``/metrics`` on a front: the printers it follows from the workers, counted by state
+with their heaters, the queue and the jobs from the shared database, and a printer no
+worker reports counted as stale. Real nats-server, workers, front, PostgreSQL, Moonraker
+and Klippy."""
+
+from __future__ import annotations
+
+import signal
+
+import httpx
+import pytest
+
+from kybercore.sim.stack import PrinterStack
+from tests.browser_mirror import BrowserMirror
+from tests.helpers import wait_for
+from tests.metrics_scrape import (
+    assert_printers_as_viewed,
+    by_state,
+    jobs_as_in_stats,
+    parse,
+    same_instant,
+)
+from tests.scale.cluster import Cluster
+from tests.scale.test_front_queue import PRINT_WITHIN, SHORT
+
+pytestmark = pytest.mark.integration
+
+READ_WITHIN = 60.0
+"""The front reads the job counts every 10 s and the queue every 2 s: 3× slack and more."""
+STALE_WITHIN = 30.0
+"""A silent slot is stale after 2 s (checked every 0.25 s): 10× slack and more."""
+
+
+async def scrape(api: httpx.AsyncClient) -> dict[str, dict[tuple[tuple[str, str], ...], float]]:
+    answer = await api.get("/metrics")
+    assert answer.status_code == 200, answer.text
+    return parse(answer.text)
+
+
+async def test_a_fronts_metrics_count_its_printers_and_read_the_shared_database(
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack]
+) -> None:
+    cluster = shared_cluster
+    printer = fleet_stacks[1].options.name
+    async with httpx.AsyncClient(base_url=cluster.front.url, timeout=60) as api:
+        # A job of two copies: copy 1 prints on a worker's printer, whose plate then waits
+        # to be cleared, and copy 2 waits in the queue.
+        created = await api.post(
+            "/api/jobs",
+            files={"file": ("front-metrics.gcode", SHORT)},
+            data={"quantity": "2", "printer": printer},
+        )
+        assert created.status_code == 201, created.text
+
+        async def copy_1_recorded() -> bool:
+            samples = await scrape(api)
+            return (
+                samples["kybercore_printer_state"].get(
+                    (("printer", printer), ("state", "awaiting_clear"))
+                )
+                == 1
+                and samples["kybercore_queue_jobs"][()] == 1
+                and samples["kybercore_queue_copies_left"][()] == 1
+                and samples.get("kybercore_jobs_total", {}).get(
+                    (("outcome", "completed"), ("printer", printer))
+                )
+                == 1
+            )
+
+        await wait_for(copy_1_recorded, PRINT_WITHIN + READ_WITHIN, "copy 1 in the metrics")
+        await wait_for(lambda: jobs_as_in_stats(api), READ_WITHIN, "jobs as in /api/stats")
+
+        async with BrowserMirror(cluster.front.ws_url):
+            views, samples = await same_instant(api)
+            health = (await api.get("/api/health")).json()
+    assert by_state(samples) == {"online/ready": len(fleet_stacks)}
+    assert_printers_as_viewed(views, samples)
+    states = {
+        dict(labels)["printer"]: dict(labels)["state"]
+        for labels, value in samples["kybercore_printer_state"].items()
+        if value == 1
+    }
+    assert states == {
+        s.options.name: "awaiting_clear" if s.options.name == printer else "idle"
+        for s in fleet_stacks
+    }
+    assert samples["kybercore_browser_clients"][()] == health["browsers"] >= 1
+    assert samples["kybercore_event_loop_lag_seconds"][()] >= 0
+    # Counted by the workers holding the sessions: a front leaves them out.
+    assert "kybercore_moonraker_reconnects_total" not in samples
+
+
+async def test_a_printer_no_worker_reports_is_stale_in_a_fronts_metrics(
+    shared_cluster: Cluster, fleet_stacks: list[PrinterStack]
+) -> None:
+    cluster = shared_cluster
+    names = {s.options.name for s in fleet_stacks}
+    async with httpx.AsyncClient(base_url=cluster.front.url, timeout=60) as api:
+        fresh = await scrape(api)
+        assert by_state(fresh) == {"online/ready": len(fleet_stacks)}
+        for worker in cluster.workers.values():
+            worker.signal(signal.SIGKILL)
+
+        async def all_stale() -> bool:
+            return by_state(await scrape(api)) == {"stale/ready": len(fleet_stacks)}
+
+        await wait_for(all_stale, STALE_WITHIN, "every printer stale in the metrics")
+        samples = await scrape(api)
+    states = samples["kybercore_printer_state"]
+    assert states == {(("printer", name), ("state", "stale")): 1 for name in names}
+    # The owners' last readings are not shown as the printers' now.
+    for name in ("kybercore_heater_temperature_celsius", "kybercore_heater_target_celsius"):
+        assert name not in samples, name
+    assert "kybercore_print_progress_ratio" not in samples
