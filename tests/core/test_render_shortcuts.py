@@ -8,7 +8,7 @@ from bench.printer_model import FILENAME, SimPrinter
 
 from kybercore.core.numbers import finite_number
 from kybercore.core.progress import PrintMemory, estimate, track
-from kybercore.core.view import LivePrinter, fuse, tracked
+from kybercore.core.view import LivePrinter, filament_runout, fuse, tracked
 from kybercore.moonraker.objects import apply_status
 from kybercore.registry.models import PrinterConfig
 
@@ -61,3 +61,46 @@ def test_the_thumbnail_follows_a_new_metadata_object_and_a_new_file() -> None:
     assert fuse(CONFIG, live)["job"]["thumbnail"] == "queue/t.png"
     live.file_meta = None
     assert fuse(CONFIG, live)["job"]["thumbnail"] is None
+
+
+def test_the_runout_follows_sensors_added_changed_and_a_new_status() -> None:
+    sim, live = printing()
+    assert fuse(CONFIG, live)["runout"] is False
+    sensor = "filament_switch_sensor spool"
+    apply_status(live.status, {sensor: {"filament_detected": True, "enabled": True}})
+    assert fuse(CONFIG, live)["runout"] is False  # a new object: the names are found again
+    apply_status(live.status, {sensor: {"filament_detected": False}})
+    assert fuse(CONFIG, live)["runout"] is True
+    apply_status(live.status, {sensor: {"enabled": False}})
+    assert fuse(CONFIG, live)["runout"] is False
+    live.status = {**sim.status(), "filament_motion_sensor m": {"filament_detected": False}}
+    assert fuse(CONFIG, live)["runout"] is True  # a snapshot: another status object
+    for _ in range(5):
+        apply_status(live.status, sim.step())
+        assert fuse(CONFIG, live)["runout"] is filament_runout(live.status) is True
+
+
+def test_the_axis_minimum_shown_follows_each_list_received() -> None:
+    _, live = printing()
+    assert fuse(CONFIG, live)["toolhead"]["axis_minimum"] == [0.0, 0.0, -2.0]
+    apply_status(live.status, {"toolhead": {"axis_minimum": [-5, 1.5, -1.0, 0.0]}})
+    assert fuse(CONFIG, live)["toolhead"]["axis_minimum"] == [-5.0, 1.5, -1.0]
+    apply_status(live.status, {"toolhead": {"axis_minimum": ["junk", 0.0, 0.0, 0.0]}})
+    assert fuse(CONFIG, live)["toolhead"]["axis_minimum"] is None
+    del live.status["toolhead"]["axis_minimum"]
+    assert fuse(CONFIG, live)["toolhead"]["axis_minimum"] is None
+
+
+def test_the_position_is_shown_only_when_every_value_is_a_number() -> None:
+    _, live = printing()
+    cases: list[tuple[object, object]] = [
+        ([1.234, 2, 3.0, 4.0, 5.5], [1.23, 2.0, 3.0, 4.0]),
+        ([1.0, "2", 3.0, 4.0], None),
+        ([1.0, 2.0, 3.0, 4.0, None], None),  # junk past the 4 shown still makes it junk
+        ([1.0, 2.0, [3.0], 4.0], None),
+        ("1,2,3,4", None),
+        ([], None),
+    ]
+    for position, shown in cases:
+        live.status["toolhead"]["position"] = position
+        assert fuse(CONFIG, live)["toolhead"]["position"] == shown, position

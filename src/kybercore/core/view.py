@@ -56,6 +56,17 @@ class LivePrinter:
         default=None, repr=False, compare=False
     )
     """(``file_meta`` object, filename, thumbnail) of the last :func:`fuse`."""
+    sensors_memo: tuple[Status, int, tuple[str, ...]] | None = field(
+        default=None, repr=False, compare=False
+    )
+    """(``status`` object, its length, its filament sensors' names) of the last
+    :func:`fuse`: objects are only ever added to a status, so the same dict at the same
+    length has the same names."""
+    minimum_memo: tuple[Any, list[float] | None] | None = field(
+        default=None, repr=False, compare=False
+    )
+    """(``toolhead.axis_minimum`` as received, as the view shows it) of the last
+    :func:`fuse`: Klipper sends it once, and a delta replaces the list, never edits it."""
 
 
 def _num(value: Any, digits: int = 1) -> float | None:
@@ -103,13 +114,16 @@ def _config_derived(config: PrinterConfig) -> _ConfigDerived:
     return derived
 
 
-def _actions(config: PrinterConfig, live: LivePrinter) -> dict[str, bool]:
+def _actions(
+    config: PrinterConfig, live: LivePrinter, caps: dict[str, Any], limits: str
+) -> dict[str, bool]:
     """:func:`allowed_actions`, derived again only when an input of :func:`facts` changed
-    (printers change state far less often than they report temperatures)."""
+    (printers change state far less often than they report temperatures). ``caps`` and
+    ``limits``: :func:`capabilities` and :func:`limits_state`, which fuse() has at hand."""
     derived = _config_derived(config)
     key = (
-        capabilities(config, live),
-        limits_state(config, live),
+        caps,
+        limits,
         live.connection,
         live.klippy_state,
         live.status.get("print_stats", {}).get("state"),
@@ -224,14 +238,12 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
     eta = reckoned.eta_seconds if busy else None
     eta_at = reckoned.eta_at if busy else None
     thumbnail = _thumbnail(live, meta, filename)
-    position = toolhead.get("position")
-    if not isinstance(position, list) or not all(isinstance(v, (int, float)) for v in position):
-        position = None
+    shown_position = _position(toolhead.get("position"))
     # A shallow copy: nested values of the cached dump are shared, and views are never
     # modified once built (the hub diffs them, the API serializes them).
     view: View = dict(_config_derived(config).public)
-    view["capabilities"] = capabilities(config, live)
-    view["limits"] = limits_state(config, live)
+    view["capabilities"] = caps = capabilities(config, live)
+    view["limits"] = limits = limits_state(config, live)
     view.update(
         connection=live.connection,
         connection_error=live.connection_error,
@@ -254,20 +266,20 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
         extruder=_heater(status.get("extruder", {})),
         bed=_heater(status.get("heater_bed", {})),
         toolhead={
-            "position": [round(float(v), 2) for v in position[:4]] if position else None,
+            "position": shown_position,
             "homed_axes": str(toolhead.get("homed_axes") or ""),
             # For validation's moves check where only the view is known (facts_of_view).
-            "axis_minimum": list(minimum) if (minimum := axis_minimum(toolhead)) else None,
+            "axis_minimum": _shown_minimum(live, toolhead),
         },
         fan_speed=_num(status.get("fan", {}).get("speed"), 2),
         speed_factor=_num(gcode_move.get("speed_factor"), 2),
         extrude_factor=_num(gcode_move.get("extrude_factor"), 2),
         z_offset=_z_offset(gcode_move.get("homing_origin")),
         can_extrude=status.get("extruder", {}).get("can_extrude") is True,
-        runout=filament_runout(status),
+        runout=_runout(live),
         spool=live.spool.public if live.spool else None,
         spoolman=live.spoolman,
-        actions=_actions(config, live),
+        actions=_actions(config, live, caps, limits),
         updated_at=round(live.updated_at, 1),
     )
     return view
@@ -290,6 +302,38 @@ def filament_runout(status: Status) -> bool:
         ):
             return True
     return False
+
+
+def _runout(live: LivePrinter) -> bool:
+    """:func:`filament_runout` of the live status, over the sensors it names (found once
+    per status object and length: the status holds a dozen objects, sensors are rare)."""
+    status = live.status
+    memo = live.sensors_memo
+    if memo is None or memo[0] is not status or memo[1] != len(status):
+        names = tuple(name for name in status if name.startswith(_SENSORS))
+        live.sensors_memo = memo = (status, len(status), names)
+    return bool(memo[2]) and filament_runout({name: status[name] for name in memo[2]})
+
+
+def _position(position: Any) -> list[float] | None:
+    """``toolhead.position`` rounded for the view; None unless every value is a number."""
+    if not isinstance(position, list) or not position:
+        return None
+    for value in position:
+        # A loop, not all() over a generator: this runs on every update of every printer.
+        if type(value) is not float and not isinstance(value, int | float):
+            return None
+    return [round(float(value), 2) for value in position[:4]]
+
+
+def _shown_minimum(live: LivePrinter, toolhead: Mapping[str, Any]) -> list[float] | None:
+    """:func:`axis_minimum` as the view shows it, worked out once per list received."""
+    raw = toolhead.get("axis_minimum")
+    memo = live.minimum_memo
+    if memo is None or memo[0] is not raw:
+        minimum = axis_minimum(toolhead)
+        live.minimum_memo = memo = (raw, list(minimum) if minimum else None)
+    return memo[1]
 
 
 def _thumbnail(live: LivePrinter, meta: dict[str, Any], filename: str) -> Any:
