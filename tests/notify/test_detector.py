@@ -277,6 +277,58 @@ def test_without_a_grace_period_an_idle_printer_offline_stays_silent() -> None:
     assert kinds(d.tick(1e9, T0)) == ["printer_offline"]
 
 
+UNREPORTED = ob("standby", reported=False)
+
+
+def test_a_printer_no_worker_reports_past_the_grace_is_told_once_then_its_return() -> None:
+    d = detector(unreported_grace_s=30.0)
+    assert feed(d, [ob("standby"), UNREPORTED]) == []  # unreported from now=1.0
+    assert d.tick(30.9, T0) == []
+    [alert] = d.tick(31.0, T0)
+    assert (alert.kind, alert.params, alert.printer) == ("printer_unreported", {"seconds": 30}, P7)
+    assert alert.severity == "critical"
+    assert d.tick(1000.0, T0) == []
+    assert d.observe(P7, UNREPORTED, 1001.0, T0) == []
+    [back] = d.observe(P7, ob("standby"), 1002.0, T0)
+    assert (back.kind, back.params, back.printer) == ("printer_recovered", {"what": "worker"}, P7)
+    assert d.observe(P7, ob("standby"), 1003.0, T0) == []
+
+
+def test_a_printer_unreported_shorter_than_the_grace_is_no_news() -> None:
+    # A slot moving between workers: stale for a few seconds, then reported again.
+    d = detector(unreported_grace_s=30.0)
+    feed(d, [ob("standby"), UNREPORTED])
+    assert d.tick(20.0, T0) == []
+    assert d.observe(P7, ob("standby"), 21.0, T0) == []
+    assert d.tick(1000.0, T0) == []
+    # And a second, separate loss counts its grace from its own start.
+    assert d.observe(P7, UNREPORTED, 1001.0, T0) == []
+    assert d.tick(1030.0, T0) == []
+    assert kinds(d.tick(1031.0, T0)) == ["printer_unreported"]
+
+
+def test_a_printer_unreported_from_the_start_counts_and_a_zero_grace_never_tells() -> None:
+    # A front that never heard of a printer has lost sight of it too (unlike offline).
+    d = detector(unreported_grace_s=30.0, offline_grace_s=30.0)
+    assert d.observe(P7, UNREPORTED, 0.0, T0) == []
+    assert kinds(d.tick(30.0, T0)) == ["printer_unreported"]
+    silent = detector(unreported_grace_s=0.0)
+    silent.observe(P7, UNREPORTED, 0.0, T0)
+    assert silent.tick(1e9, T0) == []
+    silent.update(NoiseSettings(unreported_grace_s=60.0))
+    assert kinds(silent.tick(1e9, T0)) == ["printer_unreported"]
+
+
+def test_a_printer_unreported_with_its_print_still_running_is_one_alert() -> None:
+    # Its last report stands while no worker reports it: nothing else is told; its print
+    # ending while unreported is told when a worker reports it again.
+    d = detector(unreported_grace_s=30.0)
+    feed(d, [ob("printing"), ob("printing", reported=False)])
+    assert kinds(d.tick(31.0, T0)) == ["printer_unreported"]
+    back = d.observe(P7, ob("complete"), 40.0, T0)
+    assert kinds(back) == ["printer_recovered", "print_completed"]
+
+
 def test_a_forgotten_printer_starts_afresh() -> None:
     d = detector()
     feed(d, [ob("printing")])

@@ -235,14 +235,52 @@ def test_new_settings_apply_to_the_next_event() -> None:
     assert kinds(f.push(ev("print_failed"), 10.0)) == ["print_failed"]
 
 
+def test_printers_no_worker_reports_fold_fleet_wide_and_so_do_their_returns() -> None:
+    # A worker dies: its printers, in any room, are one message; so is their return.
+    f = noise(fold_window_s=20.0, storm_threshold=3)
+    lost = [printer(1, "Room A"), printer(2, "Room B"), printer(3, None)]
+    for n, p in enumerate(lost):
+        assert f.push(ev("printer_unreported", p, seconds=30), n / 2) == []
+    [told] = f.release(20.0)
+    assert (told.kind, told.printer, told.severity) == ("printer_unreported", None, "critical")
+    assert told.params == {
+        "count": 3,
+        "printers": [p.id for p in lost],
+        "names": [p.name for p in lost],
+    }
+    for n, p in enumerate(lost):
+        assert f.push(ev("printer_recovered", p, what="worker"), 60.0 + n) == []
+    [back] = f.release(80.0)
+    assert (back.kind, back.printer) == ("printer_recovered", None)
+    assert back.params == {**told.params, "what": "worker"}
+
+
+def test_one_printer_no_worker_reports_is_its_own_event_and_so_is_its_return() -> None:
+    f = noise(fold_window_s=20.0)
+    f.push(ev("printer_unreported", seconds=30), 0.0)
+    # Reported again inside the window: the return waits for its alert, then follows it.
+    assert f.push(ev("printer_recovered", what="worker"), 5.0) == []
+    alert, back = f.release(20.0)
+    assert (alert.kind, alert.printer) == ("printer_unreported", P1)
+    assert (back.kind, back.params) == ("printer_recovered", {"what": "worker"})
+
+
+def test_a_worker_return_does_not_close_an_offline_alert() -> None:
+    f = noise(fold_window_s=0.0)
+    assert kinds(f.push(ev("printer_offline"), 0.0)) == ["printer_offline"]
+    assert f.push(ev("printer_recovered", what="worker"), 1.0) == []
+    assert kinds(f.push(ev("printer_recovered", what="connection"), 2.0)) == ["printer_recovered"]
+
+
 # --- property: never two of a kind per printer within cooldown; recoveries end alerts --------
 
 _P = [printer(1, "A"), printer(2, "A"), printer(3, "B"), printer(4, None)]
 _KINDS: list[EventKind] = [
     "printer_offline", "printer_recovered", "klippy_shutdown", "klippy_error",
-    "plate_waiting", "print_failed", "test",
+    "plate_waiting", "print_failed", "printer_unreported", "test",
 ]  # fmt: skip
-_GROUP = {"printer_offline": "connection", "klippy_shutdown": "klippy", "klippy_error": "klippy"}
+_GROUP = {"printer_offline": "connection", "klippy_shutdown": "klippy", "klippy_error": "klippy",
+          "printer_unreported": "worker"}  # fmt: skip
 _MEMBERS_OF = {"storm_offline": "printer_offline"}
 
 
@@ -260,7 +298,7 @@ def _members(event: FleetEvent) -> list[tuple[str, str]]:
         st.tuples(
             st.sampled_from(_P),
             st.sampled_from(_KINDS),
-            st.sampled_from(["connection", "klippy"]),
+            st.sampled_from(["connection", "klippy", "worker"]),
             st.floats(0, 120),
             st.booleans(),
         ),

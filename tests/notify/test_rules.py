@@ -38,12 +38,13 @@ def ev(
 def test_the_kinds_their_order_defaults_and_severities() -> None:
     assert EVENT_KINDS[0] == "print_started"
     assert EVENT_KINDS[-1] == "test"
-    assert len(EVENT_KINDS) == len(set(EVENT_KINDS)) == 14
+    assert len(EVENT_KINDS) == len(set(EVENT_KINDS)) == 15
     assert set(EVENT_KINDS) - DEFAULT_EVENTS == {"first_layer_done", "test"}
     critical = {k for k, s in SEVERITY.items() if s == "critical"}
     warning = {k for k, s in SEVERITY.items() if s == "warning"}
     assert critical == {
         "print_failed", "printer_offline", "klippy_shutdown", "klippy_error", "storm_offline",
+        "printer_unreported",
     }  # fmt: skip
     assert warning == {"print_paused", "plate_waiting", "job_blocked", "print_cancelled"}
     assert ev("print_started").severity == "info"

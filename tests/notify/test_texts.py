@@ -50,6 +50,10 @@ EVENTS = [
     ev("job_blocked", None, job_id=4, job_name="Brackets", minutes=11, reason="3 failures."),
     ev("storm_offline", None, **fold(12, location="Room B")),
     ev("storm_offline", None, **fold(4, location=None)),
+    ev("printer_unreported", seconds=31),
+    ev("printer_unreported", None, **fold(3)),
+    ev("printer_recovered", what="worker"),
+    ev("printer_recovered", None, **fold(3, what="worker")),
     ev("test", None),
 ]
 
@@ -106,6 +110,21 @@ def test_every_event_reads_as_a_headline_and_a_sentence(
             ev("print_failed", filename="a.gcode", message="Heater extruder not heating."),
             ("printer-7: print failed", "with an error: Heater extruder not heating. Check"),
             ("printer-7: la impresión falló", "por un error: Heater extruder not heating. Revise"),
+        ),
+        (
+            ev("printer_unreported", seconds=31),
+            ("printer-7: no KyberCore worker reports it", "Check that the `kybercore ingest`"),
+            ("ningún worker de KyberCore informa de ella", "Compruebe que los workers"),
+        ),
+        (
+            ev("printer_unreported", None, **fold(3)),
+            ("3 printers: no KyberCore worker reports them", "printer-1, printer-2 and"),
+            ("3 impresoras sin ningún worker de KyberCore", "printer-1, printer-2 y printer-3"),
+        ),
+        (
+            ev("printer_recovered", None, **fold(3, what="worker")),
+            ("3 printers reported again", "KyberCore workers report these printers again"),
+            ("3 impresoras vuelven a tener un worker", "vuelven a informar de estas"),
         ),
         (
             ev("print_paused", filename="a.gcode", reason="runout"),

@@ -1,7 +1,7 @@
 """The printers as notifications read them on a front (FrontNotifyPrinters), over a stand-in
 for the front's views: what is no news of a printer on a front (its owner silent, a new
-owner's session starting) reads as the observation before it, and only the patches that
-touch an observation are heard."""
+owner's session starting) reads as the observation before it (an owner silent marks it not
+reported), and only the patches that touch an observation are heard."""
 
 from __future__ import annotations
 
@@ -26,11 +26,13 @@ PRINTING = LivePrinter(
 
 class Views:
     """What FrontNotifyPrinters reads of a FrontFleet: the registry, the owners' views
-    (``copy.views``), the views as shown (marked stale), and the patches as applied."""
+    (``copy.views``), the views as shown (marked stale), which printers no worker reports,
+    and the patches as applied."""
 
     def __init__(self) -> None:
         self.copy = SimpleNamespace(views={})
         self.shown: dict[str, View] = {}
+        self.unreported: set[str] = set()
         self.watchers: list[Watcher] = []
 
     def configs(self) -> list[PrinterConfig]:
@@ -45,6 +47,9 @@ class Views:
         self.config(printer_id)
         found: View | None = self.shown.get(printer_id) or self.copy.views.get(printer_id)
         return found if found is not None else fuse(P1, LivePrinter())
+
+    def reported(self, printer_id: str) -> bool:
+        return printer_id not in self.unreported
 
     def watch(self, watcher: Watcher) -> Callable[[], None]:
         self.watchers.append(watcher)
@@ -65,12 +70,16 @@ def test_a_printer_no_owner_reported_yet_is_connecting() -> None:
     assert (seen.ref.id, seen.observation.connection) == ("p1", "connecting")
 
 
-def test_a_stale_view_reads_as_the_owners_last() -> None:
+def test_a_stale_view_reads_as_the_owners_last_not_reported() -> None:
     views, front = printers()
     views.owner_reports(PRINTING)
+    assert front.get("p1").observation.reported
     views.shown[P1.id] = {**views.copy.views[P1.id], "connection": "stale"}
+    views.unreported.add(P1.id)
     seen = front.get("p1").observation
-    assert (seen.connection, seen.print_state) == ("online", "printing")
+    assert (seen.connection, seen.print_state, seen.reported) == ("online", "printing", False)
+    views.unreported.clear()  # a worker reports it again: the same observation, reported
+    assert front.get("p1").observation == dataclasses.replace(seen, reported=True)
 
 
 def test_a_new_owner_connecting_is_no_news_of_the_printer() -> None:

@@ -14,7 +14,14 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from kybercore.notify.models import DEFAULT_EVENTS, EVENT_KINDS, EventKind, NoiseSettings, Severity
+from kybercore.notify.models import (
+    DEFAULT_EVENTS,
+    EVENT_KINDS,
+    UNREPORTED_GRACE_S,
+    EventKind,
+    NoiseSettings,
+    Severity,
+)
 from kybercore.notify.rules import ChannelRules, QuietHours, clock
 
 MAX_TARGET: Final = 2000
@@ -46,6 +53,10 @@ KIND_LABELS: Final[dict[EventKind, tuple[str, str]]] = {
     "plate_waiting": ("Plate waiting to be cleared", "Placa esperando a ser retirada"),
     "job_blocked": ("Queue job blocked", "Trabajo de la cola bloqueado"),
     "storm_offline": ("Many printers offline", "Muchas impresoras desconectadas"),
+    "printer_unreported": (
+        "No KyberCore worker reports a printer",
+        "Ningún worker de KyberCore informa de una impresora",
+    ),
     "test": ("Test message", "Mensaje de prueba"),
 }
 """How the dashboard and the CLI name each event kind."""
@@ -226,6 +237,12 @@ class SettingsBody(BaseModel):
     )
     plate_wait_s: float = Field(ge=0, le=WEEK, description="A plate waiting longer alerts.")
     job_blocked_s: float = Field(ge=0, le=WEEK, description="A job stuck longer alerts.")
+    unreported_grace_s: float = Field(
+        default=UNREPORTED_GRACE_S,
+        ge=0,
+        le=WEEK,
+        description="On NATS: a printer no KyberCore worker reports this long alerts; 0: never.",
+    )
 
     @classmethod
     def of(cls, settings: NoiseSettings) -> SettingsBody:

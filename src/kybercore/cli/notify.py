@@ -38,6 +38,10 @@ SETTINGS = {
     "offline_grace": ("offline_grace_s", "An idle printer offline this long alerts; 0: never."),
     "plate_wait": ("plate_wait_s", "Seconds a plate may wait to be cleared before an alert."),
     "job_blocked": ("job_blocked_s", "Seconds a queued job may be stuck before an alert."),
+    "unreported_grace": (
+        "unreported_grace_s",
+        "On NATS: seconds a printer may go unreported by every worker before an alert; 0: never.",
+    ),
 }
 
 
@@ -203,6 +207,9 @@ def settings(
     offline_grace: Annotated[float | None, typer.Option(help=SETTINGS["offline_grace"][1])] = None,
     plate_wait: Annotated[float | None, typer.Option(help=SETTINGS["plate_wait"][1])] = None,
     job_blocked: Annotated[float | None, typer.Option(help=SETTINGS["job_blocked"][1])] = None,
+    unreported_grace: Annotated[
+        float | None, typer.Option(help=SETTINGS["unreported_grace"][1])
+    ] = None,
     url: ServerUrl = DEFAULT_URL,
     token: Token = None,
 ) -> None:
@@ -210,6 +217,7 @@ def settings(
     given = {
         "cooldown": cooldown, "fold_window": fold_window, "storm_threshold": storm_threshold,
         "offline_grace": offline_grace, "plate_wait": plate_wait, "job_blocked": job_blocked,
+        "unreported_grace": unreported_grace,
     }  # fmt: skip
     changes = {SETTINGS[k][0]: v for k, v in given.items() if v is not None}
     with remote_errors(), Remote(url, token) as remote:

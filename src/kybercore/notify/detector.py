@@ -11,6 +11,12 @@ online (``disconnected`` and ``startup`` say nothing: every reconnect passes thr
 The first value learned of each is a baseline and emits nothing, so a KyberCore restart is
 silent; and a reconnect is judged against the state before the loss, so a print that
 finished meanwhile is told once and a finished one seen again is not told twice.
+
+On NATS a printer may also go *unreported*: no KyberCore worker publishes it (all of them
+down, or its slot held by none), so nothing about it can be known. Past
+``unreported_grace_s`` that is told (``printer_unreported``), and its end too
+(``printer_recovered``, ``what: worker``). Unlike an offline printer, one unreported from
+the start counts: a front that never hears of a printer has lost sight of it all the same.
 """
 
 from __future__ import annotations
@@ -52,6 +58,9 @@ class Observation:
     """``print_stats.info.current_layer`` (None unless the slicer reports layers)."""
     runout: bool
     """An enabled filament sensor reports no filament."""
+    reported: bool = True
+    """A KyberCore process reports the printer now: False only on a front, while no worker
+    publishes its slot (the other fields are then its last report)."""
 
 
 def _text(value: Any) -> str:
@@ -118,8 +127,10 @@ class _Track:
     first_layer_armed: bool = False
     lost_at: float | None = None
     """When the connection was lost with no alert told (for the grace period)."""
+    unreported_at: float | None = None
+    """When no worker reported it any more, with no alert told (for its grace period)."""
     alerts: set[str] = field(default_factory=set)
-    """Alerts told and not yet recovered: ``connection``, ``klippy``."""
+    """Alerts told and not yet recovered: ``connection``, ``klippy``, ``worker``."""
 
 
 class Detector:
@@ -131,7 +142,7 @@ class Detector:
         self._refs: dict[str, PrinterRef] = {}
 
     def update(self, settings: NoiseSettings) -> None:
-        """Use new settings from now on (the grace period of printers already offline too)."""
+        """Use new settings from now on (the grace periods of printers already counting too)."""
         self._settings = settings
 
     def forget(self, printer_id: str) -> None:
@@ -163,6 +174,7 @@ class Detector:
                 track.alerts.discard("connection")
                 emit("printer_recovered", what="connection")
         track.online = online
+        self._reported(track, obs.reported, emit, now)
         if online:
             self._klippy(track, obs, emit)
             if obs.klippy_state == "ready":
@@ -170,19 +182,36 @@ class Detector:
         return events
 
     def tick(self, now: float, at: datetime) -> list[FleetEvent]:
-        """printer_offline for the printers offline longer than the grace period (if set)."""
-        grace = self._settings.offline_grace_s
-        if grace <= 0:
-            return []
+        """printer_offline for the printers offline longer than the offline grace period,
+        printer_unreported for those unreported longer than theirs (each if set)."""
+        offline_grace = self._settings.offline_grace_s
+        unreported_grace = self._settings.unreported_grace_s
         events = []
         for printer_id, track in self._tracks.items():
-            if track.lost_at is not None and now - track.lost_at >= grace:
-                minutes = max(1, round((now - track.lost_at) / 60))
+            printer = self._refs[printer_id]
+            lost, unreported = track.lost_at, track.unreported_at
+            if lost is not None and 0 < offline_grace <= now - lost:
                 track.lost_at = None
                 track.alerts.add("connection")
-                printer = self._refs[printer_id]
+                minutes = max(1, round((now - lost) / 60))
                 events.append(FleetEvent("printer_offline", at, printer, {"minutes": minutes}))
+            if unreported is not None and 0 < unreported_grace <= now - unreported:
+                track.unreported_at = None
+                track.alerts.add("worker")
+                seconds = round(now - unreported)
+                events.append(FleetEvent("printer_unreported", at, printer, {"seconds": seconds}))
         return events
+
+    @staticmethod
+    def _reported(track: _Track, reported: bool, emit: Emit, now: float) -> None:
+        if not reported:
+            if track.unreported_at is None and "worker" not in track.alerts:
+                track.unreported_at = now
+            return
+        track.unreported_at = None
+        if "worker" in track.alerts:
+            track.alerts.discard("worker")
+            emit("printer_recovered", what="worker")
 
     def _lost(self, track: _Track, emit: Emit, now: float) -> None:
         # A Klippy already down was told: losing the printer then (a power cycle to

@@ -17,7 +17,8 @@ from kybercore.registry.models import PrinterConfig
 EventKind = Literal[
     "print_started", "print_completed", "print_failed", "print_cancelled", "print_paused",
     "first_layer_done", "printer_offline", "printer_recovered", "klippy_shutdown",
-    "klippy_error", "plate_waiting", "job_blocked", "storm_offline", "test",
+    "klippy_error", "plate_waiting", "job_blocked", "storm_offline", "printer_unreported",
+    "test",
 ]  # fmt: skip
 EVENT_KINDS: Final[tuple[EventKind, ...]] = get_args(EventKind)
 """Every kind, in the order the dashboard lists them."""
@@ -30,7 +31,7 @@ are always delivered)."""
 
 Severity = Literal["info", "warning", "critical"]
 _CRITICAL: Final = ("print_failed", "printer_offline", "klippy_shutdown", "klippy_error",
-                    "storm_offline")  # fmt: skip
+                    "storm_offline", "printer_unreported")  # fmt: skip
 _WARNING: Final = ("print_paused", "plate_waiting", "job_blocked", "print_cancelled")
 SEVERITY: Final[Mapping[EventKind, Severity]] = {
     kind: "critical" if kind in _CRITICAL else "warning" if kind in _WARNING else "info"
@@ -128,6 +129,14 @@ class FleetEvent:
         )
 
 
+UNREPORTED_GRACE_S: Final = 30.0
+"""Seconds a printer may go unreported by every KyberCore worker before it is told. A front
+marks a slot stale after 2 s of silence; a slot handed over between live workers is back
+within a second or two, one whose worker died within TTL + TTL/3 plus a reconnect (≤ 10 s
+promised at TTL 3, so about 14 s at the workers' default TTL of 6 s): twice that is no
+normal failover."""
+
+
 @dataclass(frozen=True, slots=True)
 class NoiseSettings:
     """How much the farm may say. Plain data: the API validates with its own model."""
@@ -135,7 +144,7 @@ class NoiseSettings:
     cooldown_s: float = 300.0
     """The same event of the same printer is told at most once in this many seconds."""
     fold_window_s: float = 20.0
-    """Offline and plate-waiting events are held this long, to be folded together."""
+    """Offline, plate-waiting and unreported events are held this long, to be folded."""
     storm_threshold: int = 3
     """More than this many printers of one location offline within the fold window make
     one storm_offline message."""
@@ -146,3 +155,6 @@ class NoiseSettings:
     """A plate awaiting clear longer than this makes a plate_waiting event."""
     job_blocked_s: float = 600.0
     """A queued job blocked longer than this makes a job_blocked event."""
+    unreported_grace_s: float = UNREPORTED_GRACE_S
+    """> 0: a printer no KyberCore worker has reported for longer than this (on NATS) makes
+    a printer_unreported event. 0: never."""

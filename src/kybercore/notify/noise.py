@@ -6,15 +6,18 @@ calls :meth:`NoiseFilter.release` about once a second; both return what goes out
 - **Cooldown**: an event of one subject (its printer; else its job or location) and kind is
   told at most once per ``cooldown_s``, counted between the times they go *out*, so a
   held event cannot come out closer to the previous one than that.
-- **Pairing**: a ``printer_recovered`` goes out only if the alert it ends (offline, or
-  Klippy's shutdown/error) went out, alone or folded into a storm, and closes it. It has no
+- **Pairing**: a ``printer_recovered`` goes out only if the alert it ends (offline,
+  Klippy's shutdown/error, or no worker reporting it) went out, alone or folded, and
+  closes it. It has no
   cooldown of its own: there is at most one per alert, and alerts are cooled down, so a
   flapping printer sends one alert and one recovery per cooldown.
-- **Folding**: ``printer_offline`` and ``plate_waiting`` are held ``fold_window_s`` from the
-  first of their group (offline: per location; plates: the whole fleet). When the window
-  closes, more than ``storm_threshold`` offline printers of one location make one
-  ``storm_offline``; several plates make one ``plate_waiting``. The recoveries of a storm's
-  printers are folded the same way, per location, into one ``printer_recovered``.
+- **Folding**: ``printer_offline``, ``plate_waiting`` and ``printer_unreported`` are held
+  ``fold_window_s`` from the first of their group (offline: per location; plates and
+  unreported printers: the whole fleet, as a worker's printers stand in any room). When
+  the window closes, more than ``storm_threshold`` offline printers of one location make
+  one ``storm_offline``; several plates one ``plate_waiting``; several unreported printers
+  (a worker died) one ``printer_unreported``. The recoveries of folded alerts are folded
+  the same way (a storm's per location) into one ``printer_recovered``.
 - ``test`` events always pass.
 """
 
@@ -26,13 +29,21 @@ from typing import Any, Final
 
 from kybercore.notify.models import EventKind, FleetEvent, NoiseSettings
 
-_HELD: Final[frozenset[EventKind]] = frozenset({"printer_offline", "plate_waiting"})
+_HELD: Final[frozenset[EventKind]] = frozenset(
+    {"printer_offline", "plate_waiting", "printer_unreported"}
+)
 _ALERT_GROUP: Final[dict[EventKind, str]] = {
     "printer_offline": "connection",
     "klippy_shutdown": "klippy",
     "klippy_error": "klippy",
+    "printer_unreported": "worker",
 }
 """Alerts a ``printer_recovered`` ends; its ``params.what`` names the group."""
+_HELD_ALERT: Final[dict[str, EventKind]] = {
+    "connection": "printer_offline",
+    "worker": "printer_unreported",
+}
+"""The held alert of each group, whose recovery waits for it to go out."""
 
 
 def subject(event: FleetEvent) -> str:
@@ -43,8 +54,10 @@ def subject(event: FleetEvent) -> str:
 
 
 def recovery_group(event: FleetEvent) -> str:
-    """The alert group a ``printer_recovered`` closes: ``klippy`` or ``connection``."""
-    return "klippy" if event.params.get("what") == "klippy" else "connection"
+    """The alert group a ``printer_recovered`` closes: ``klippy``, ``worker`` or
+    ``connection``."""
+    what = event.params.get("what")
+    return what if what in ("klippy", "worker") else "connection"
 
 
 @dataclass(slots=True)
@@ -58,8 +71,10 @@ class _Window:
         return any(subject(event) == printer_id for event in self.events)
 
 
-# A window's group: (kind, location); plates fold fleet-wide (location None).
-_Group = tuple[EventKind, str | None]
+# A window's group: (kind, location, alert group). Offline printers and a storm's
+# recoveries fold per location, the rest fleet-wide (location None); the alert group keeps
+# the recoveries of storms and of unreported printers apart.
+_Group = tuple[EventKind, str | None, str]
 
 
 class NoiseFilter:
@@ -72,8 +87,8 @@ class NoiseFilter:
         self._open: dict[tuple[str, str], bool] = {}
         """(printer id, alert group) -> whether the alert went out folded into a storm."""
         self._held: dict[_Group, _Window] = {}
-        self._waiting: dict[str, FleetEvent] = {}
-        """Recoveries of printers whose offline alert is still held: sent after it."""
+        self._waiting: dict[tuple[str, str], FleetEvent] = {}
+        """(printer id, alert group) -> a recovery whose alert is still held: sent after it."""
 
     def update(self, settings: NoiseSettings) -> None:
         """Use new settings from now on; held windows keep their deadlines."""
@@ -112,7 +127,7 @@ class NoiseFilter:
             self._opened([event], folded=False)
             return [event]
         location = event.printer.location if event.printer else None
-        group: _Group = (event.kind, location if event.kind == "printer_offline" else None)
+        group: _Group = (event.kind, location if event.kind == "printer_offline" else None, "")
         window = self._hold(group, now)
         if not window.holds(key[0]):
             window.events.append(event)
@@ -132,42 +147,54 @@ class NoiseFilter:
     def _recovered(self, event: FleetEvent, now: float) -> list[FleetEvent]:
         printer_id = subject(event)
         group = recovery_group(event)
-        if group == "connection" and any(
-            g[0] == "printer_offline" and w.holds(printer_id) for g, w in self._held.items()
-        ):
-            self._waiting[printer_id] = event
+        held = _HELD_ALERT.get(group)
+        if any(g[0] == held and w.holds(printer_id) for g, w in self._held.items()):
+            self._waiting[(printer_id, group)] = event
             return []
         folded = self._open.pop((printer_id, group), None)
         if folded is None:
             return []
         if not folded:
             return [event]
-        location = event.printer.location if event.printer else None
-        self._hold(("printer_recovered", location), now).events.append(event)
+        location = event.printer.location if event.printer and group == "connection" else None
+        self._hold(("printer_recovered", location, group), now).events.append(event)
         return []
 
     def _fold(self, group: _Group, window: _Window, now: float) -> list[FleetEvent]:
-        kind, location = group
+        kind, location, what = group
         events = window.events
         for event in events:  # out now, maybe later than the deadline it was counted from
             self._out[(subject(event), event.kind)] = now
-        if kind == "printer_offline":
-            storm = len(events) > self._settings.storm_threshold
-            self._opened(events, folded=storm)
-            out = [_folded("storm_offline", events, location=location)] if storm else events
-            for event in events:
-                waiting = self._waiting.pop(subject(event), None)
-                if waiting is not None:
-                    out = [*out, *self._recovered(waiting, now)]
-            return out
+        if kind in _HELD_ALERT.values():
+            return self._fold_alerts(kind, location, events, now)
         if len(events) == 1:
             return events
         if kind == "printer_recovered":
-            return [_folded(kind, events, location=location, what="connection")]
+            where = {"location": location} if what == "connection" else {}
+            return [_folded(kind, events, **where, what=what)]
         # Plates fold fleet-wide; when they all stand in one place, say where.
         locations = {event.printer.location if event.printer else None for event in events}
         place = locations.pop() if len(locations) == 1 else None
         return [_folded(kind, events, **({"location": place} if place else {}))]
+
+    def _fold_alerts(
+        self, kind: EventKind, location: str | None, events: list[FleetEvent], now: float
+    ) -> list[FleetEvent]:
+        """A closed window of offline or unreported printers: folded (a storm; several
+        unreported) or one by one; then the recoveries that waited for them."""
+        storm = kind == "printer_offline"
+        fold = len(events) > (self._settings.storm_threshold if storm else 1)
+        self._opened(events, folded=fold)
+        out = events
+        if fold:
+            out = [_folded("storm_offline", events, location=location) if storm
+                   else _folded(kind, events)]  # fmt: skip
+        group = _ALERT_GROUP[kind]
+        for event in events:
+            waiting = self._waiting.pop((subject(event), group), None)
+            if waiting is not None:
+                out = [*out, *self._recovered(waiting, now)]
+        return out
 
 
 def _folded(kind: EventKind, events: list[FleetEvent], **params: Any) -> FleetEvent:

@@ -106,6 +106,19 @@ _TEXTS: Final[dict[tuple[str, str], tuple[str, str, str, str]]] = {
         "{name} vuelve a estar en línea",
         "KyberCore vuelve a estar conectado a {name}.",
     ),
+    ("printer_recovered", "worker"): (
+        "{name} is reported again",
+        "A KyberCore worker reports {name} again: its prints and alerts are followed again.",
+        "{name} vuelve a tener un worker",
+        "Un worker de KyberCore vuelve a informar de {name}: sus impresiones y avisos se "
+        "siguen de nuevo.",
+    ),
+    ("printer_recovered", "worker_fold"): (
+        "{printers} reported again",
+        "KyberCore workers report these printers again: {names}.",
+        "{printers} vuelven a tener un worker",
+        "Los workers de KyberCore vuelven a informar de estas impresoras: {names}.",
+    ),
     ("printer_recovered", "fold"): (
         "{where}{printers} back online",
         "Back online: {names}.",
@@ -149,6 +162,25 @@ _TEXTS: Final[dict[tuple[str, str], tuple[str, str, str, str]]] = {
         "{where}{printers} sin conexión",
         "{printers}{there} {went_es} a la vez: {names}. Revise su alimentación y su red.",
     ),
+    ("printer_unreported", ""): (
+        "{name}: no KyberCore worker reports it",
+        "No KyberCore worker has reported {name} for {seconds} s, so KyberCore cannot see "
+        "its prints or alerts. Check that the `kybercore ingest` workers are running and "
+        "reach NATS.",
+        "{name}: ningún worker de KyberCore informa de ella",
+        "Ningún worker de KyberCore informa de {name} desde hace {seconds} s, así que "
+        "KyberCore no ve sus impresiones ni sus avisos. Compruebe que los workers "
+        "`kybercore ingest` están en marcha y llegan a NATS.",
+    ),
+    ("printer_unreported", "fold"): (
+        "{printers}: no KyberCore worker reports them",
+        "No KyberCore worker reports {names}, so KyberCore cannot see their prints or "
+        "alerts. Check that the `kybercore ingest` workers are running and reach NATS.",
+        "{printers} sin ningún worker de KyberCore",
+        "Ningún worker de KyberCore informa de {names}, así que KyberCore no ve sus "
+        "impresiones ni sus avisos. Compruebe que los workers `kybercore ingest` están en "
+        "marcha y llegan a NATS.",
+    ),
     ("test", ""): (
         "KyberCore test notification",
         "This channel works: KyberCore can reach it.",
@@ -168,14 +200,17 @@ def render(event: FleetEvent, language: Language) -> tuple[str, str]:
 
 def _variant(event: FleetEvent) -> str:
     params = event.params
-    if event.printer is None and event.kind in ("printer_recovered", "plate_waiting"):
+    if event.printer is None and event.kind == "printer_recovered":
+        return "worker_fold" if params.get("what") == "worker" else "fold"
+    if event.printer is None and event.kind in ("plate_waiting", "printer_unreported"):
         return "fold"
     if event.kind == "print_paused":
         return "runout" if params.get("reason") == "runout" else ""
     if event.kind == "printer_offline":
         return "printing" if params.get("was") == "printing" else str(params.get("was") or "")
     if event.kind == "printer_recovered":
-        return "klippy" if params.get("what") == "klippy" else ""
+        what = params.get("what")
+        return what if what in ("klippy", "worker") else ""
     return ""
 
 
@@ -194,6 +229,7 @@ def _values(event: FleetEvent, language: Language) -> dict[str, str]:
         "file": display_file(params.get("filename")) or ("el archivo" if es else "the file"),
         "detail": f": {detail}" if detail else "",
         "minutes": _plural(_count(params.get("minutes"), 0), "minuto" if es else "minute"),
+        "seconds": str(_count(params.get("seconds"), 0)),
         "job": _clean(params.get("job_name")) or f"#{_clean(params.get('job_id')) or '?'}",
         "names": listing([str(n) for n in names], language) if names else "?",
         "where": f"{location}: " if location else "",

@@ -244,6 +244,11 @@ class FrontFleet(FleetService):
             raise UnknownPrinter(printer_id)
         return view
 
+    def reported(self, printer_id: str) -> bool:
+        """Whether a worker reports the printer now: its slot's owner was heard within
+        :data:`~.follow.STALE_SECONDS` (never, for a slot nobody holds)."""
+        return not self.copy.is_stale(slot_of(printer_id, self._slots))
+
     def view(self, printer_id: str) -> View:
         """One printer's view, as last published."""
         view = self.hub.view(printer_id) or self._render(printer_id)

@@ -23,6 +23,13 @@ is offline from the start; a print still running is told when it ends). The gap 
 the role's TTL when a holder dies, none when it stops (it hands the role over). Events the
 last holder had detected reached the database before it stopped (its stop flushes them);
 its outbox's pending deliveries are the new holder's to send.
+
+A printer no worker reports (its slot silent: every worker down, or the slot held by none)
+is news of KyberCore itself: past the settings' ``unreported_grace_s`` it is told
+(``printer_unreported``; several together, as when a worker dies, in one message), and so
+is its return. The grace outlasts a slot moving between workers. A holder cut off from the
+broker hears no worker either, but it fences itself within the role's TTL, before the
+grace ends: its own silence is not blamed on the workers.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any, Final
 
 from nats.aio.msg import Msg
@@ -69,10 +77,10 @@ class FrontNotifyPrinters:
 
     Two things on a front are no news of the printer itself, and are read as the
     observation before them: a view marked stale (its owner went silent; the owner's last
-    view is read instead), and ``connecting`` once the printer was seen otherwise (a new
-    owner's session starting, when a slot moves between workers; a front cannot tell it
-    from the first connection of a session for other reasons, which then reads as the
-    state before it)."""
+    view is read instead, marked not ``reported``: news of KyberCore, told past a grace
+    period), and ``connecting`` once the printer was seen otherwise (a new owner's session
+    starting, when a slot moves between workers; a front cannot tell it from the first
+    connection of a session for other reasons, which then reads as the state before it)."""
 
     def __init__(self, fleet: FrontFleet) -> None:
         self._fleet = fleet
@@ -123,6 +131,8 @@ class FrontNotifyPrinters:
             observation = self._last[config.id]
         else:
             self._last[config.id] = observation
+        if not self._fleet.reported(config.id):
+            observation = replace(observation, reported=False)
         return Observed(PrinterRef.of(config), observation)
 
 

@@ -15,6 +15,7 @@ const FIELDS = [
   ["offline_grace_s", "nt.set.offline_grace", "nt.unit.minutes", 60],
   ["plate_wait_s", "nt.set.plate_wait", "nt.unit.minutes", 60],
   ["job_blocked_s", "nt.set.job_blocked", "nt.unit.minutes", 60],
+  ["unreported_grace_s", "nt.set.unreported_grace", "nt.unit.seconds", 1],
 ];
 
 let els = null;

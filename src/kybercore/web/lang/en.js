@@ -585,6 +585,7 @@ export default {
   "nt.set.offline_grace": "Alert when an idle printer stays offline longer than (0 = never)",
   "nt.set.plate_wait": "Alert when a plate waits to be cleared longer than",
   "nt.set.job_blocked": "Alert when a queued job is blocked longer than",
+  "nt.set.unreported_grace": "On NATS, alert when no KyberCore worker reports a printer for longer than (0 = never)",
   "nt.unit.minutes": "minutes",
   "nt.unit.seconds": "seconds",
   "nt.unit.printers": "printers",

@@ -585,6 +585,7 @@ export default {
   "nt.set.offline_grace": "Avisar cuando una impresora inactiva sigue desconectada más de (0 = nunca)",
   "nt.set.plate_wait": "Avisar cuando una placa espera a ser retirada más de",
   "nt.set.job_blocked": "Avisar cuando un trabajo en cola está bloqueado más de",
+  "nt.set.unreported_grace": "En NATS, avisar cuando ningún worker de KyberCore informa de una impresora durante más de (0 = nunca)",
   "nt.unit.minutes": "minutos",
   "nt.unit.seconds": "segundos",
   "nt.unit.printers": "impresoras",
