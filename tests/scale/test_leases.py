@@ -11,9 +11,11 @@ from pathlib import Path
 
 import pytest
 from nats.aio.client import Client
+from nats.js.errors import KeyWrongLastSequenceError
 
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.leases import FENCE_AT, Leases
+from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases
+from kybercore.scale.slots import slot_key
 from tests.scale.replay import no_overlap
 
 SLOTS = 16
@@ -135,3 +137,42 @@ async def test_ownership_comes_back_after_the_broker_restarts(
     for w in (w1, w2):
         await w.flush_log()
     no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_claim_answered_after_the_peers_lease_expired_skips_only_that_slot(
+    workers: Start, nats_server: LocalServer
+) -> None:
+    # nats-py's create, when its compare-and-set fails, reads the key back to tell a live
+    # key from a deleted one; a lease that expires in between (a starved loop) makes that
+    # read raise "key not found". It must cost that slot this round, not the whole round.
+    w1 = await workers("w1")
+    assert w1._task is not None
+    assert w1._kv is not None
+    w1._task.cancel()  # rounds by hand
+    peer = await connect(nats_server.url, "peer")
+    try:
+        js = peer.jetstream()
+        slots = await js.key_value(SLOTS_BUCKET)
+        contested = slot_key(0)
+        real_update = w1._kv._update
+
+        async def late_reply(key: str, value: bytes, last: int | None = None, **kw: object) -> int:
+            if key != contested or last:
+                return await real_update(key, value, last=last, **kw)  # type: ignore[arg-type]
+            await slots.create(key, b'{"w": "peer", "epoch": 0}')  # the peer gets there first
+            try:
+                return await real_update(key, value, last=last, **kw)  # type: ignore[arg-type]
+            except KeyWrongLastSequenceError:
+                # ...and its lease runs out before this reply is read. Gone as by its TTL,
+                # without waiting for it: a purge of the stream's subject leaves no tombstone.
+                await js.purge_stream(f"KV_{SLOTS_BUCKET}", subject=f"$KV.{SLOTS_BUCKET}.{key}")
+                raise
+
+        w1._kv._update = late_reply  # type: ignore[method-assign]
+        await w1.round()
+        assert set(w1.owned()) == set(range(1, SLOTS))
+        w1._kv._update = real_update  # type: ignore[method-assign]
+        await w1.round()  # free again: taken
+        assert set(w1.owned()) == set(range(SLOTS))
+    finally:
+        await peer.close()

@@ -169,6 +169,10 @@ class Leases:
                 revision = await self._kv.create(slot_key(slot), self._value(0))
             except KeyWrongLastSequenceError:
                 continue  # someone owns it
+            except KeyNotFoundError:
+                # nats-py's create reads the key back after a failed compare-and-set; a
+                # lease expiring in between fails that read. The slot is free next round.
+                continue
             self._held[slot] = Held(revision, revision, sent)
             self._write("own", slot, revision)
             if self._on_change:
