@@ -7,7 +7,9 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Protocol
 
 import pytest
 from nats.aio.client import Client
@@ -23,16 +25,22 @@ TTL = 3.0
 # Takeover is due TTL + TTL/3 after a worker's last renewal (~4 s): 5× slack.
 TAKEOVER_BOUND = 5 * (TTL + TTL / 3)
 
-Start = Callable[[str], Awaitable[Leases]]
+TURN = 0.015
+"""Seconds each turn of a starved event loop costs (ingest at 20,000 updates a second): a
+KV call waits for about 7 turns, a renewal round of 32 slots one after another 3.4 s."""
+
+
+class Start(Protocol):
+    def __call__(self, name: str, slots: int = SLOTS) -> Awaitable[Leases]: ...
 
 
 @pytest.fixture
 async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Start]:
     started: list[tuple[Leases, Client]] = []
 
-    async def start(name: str) -> Leases:
+    async def start(name: str, slots: int = SLOTS) -> Leases:
         nc = await connect(nats_server.url, name)
-        leases = Leases(nc, name, slots=SLOTS, ttl=TTL, log_path=tmp_path / f"{name}.log")
+        leases = Leases(nc, name, slots=slots, ttl=TTL, log_path=tmp_path / f"{name}.log")
         await leases.start()
         started.append((leases, nc))
         return leases
@@ -176,3 +184,59 @@ async def test_a_claim_answered_after_the_peers_lease_expired_skips_only_that_sl
         assert set(w1.owned()) == set(range(SLOTS))
     finally:
         await peer.close()
+
+
+@asynccontextmanager
+async def starved_loop() -> AsyncIterator[None]:
+    """Every turn of the event loop costs ``TURN`` seconds while inside."""
+
+    async def hog() -> None:
+        while True:
+            time.sleep(TURN)  # blocks the loop on purpose: the stand-in for ingest's work
+            await asyncio.sleep(0)
+
+    task = asyncio.create_task(hog())
+    try:
+        yield
+    finally:
+        task.cancel()
+
+
+def rounds_of(leases: Leases) -> list[float]:
+    """The monotonic() ends of ``leases``' rounds from now on."""
+    ended: list[float] = []
+    real_round = leases.round
+
+    async def counted() -> None:
+        await real_round()
+        ended.append(time.monotonic())
+
+    leases.round = counted  # type: ignore[method-assign]
+    return ended
+
+
+def drops(paths: list[Path]) -> list[str]:
+    return [line for path in paths for line in path.read_text().splitlines() if '"drop"' in line]
+
+
+async def test_a_starved_loop_renews_every_lease_in_time(workers: Start, tmp_path: Path) -> None:
+    # 64 slots, as deployed: 32 renewals a round. Sent one after another, each waiting for
+    # its reply, a round outlasted the fence and every lease was dropped and claimed again.
+    w1, w2 = await workers("w1", slots=64), await workers("w2", slots=64)
+    await until("32/32", lambda: len(w1.owned()) == len(w2.owned()) == 32)
+    for w in (w1, w2):
+        await w.flush_log()
+    logs = sorted(tmp_path.glob("w*.log"))
+    before = drops(logs)  # w1 started alone, took every slot and released half to w2
+    ended = [rounds_of(w1), rounds_of(w2)]
+
+    def three_rounds_each() -> bool:
+        w1.owned(), w2.owned()  # fences what is late, as a worker's reconcile does
+        return min(len(e) for e in ended) >= 3
+
+    async with starved_loop():
+        await until("three starved rounds each", three_rounds_each, timeout=3 * TAKEOVER_BOUND)
+    assert len(w1.owned()) == len(w2.owned()) == 32
+    for w in (w1, w2):
+        await w.flush_log()
+    assert drops(logs) == before
