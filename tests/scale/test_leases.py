@@ -1,6 +1,7 @@
 """Slot ownership by leases on a real nats-server: an even split, takeover when a worker
 dies, rebalancing when one joins, self-fencing when one stalls, recovery after the broker
-restarts, and, replayed from every worker's own/drop log, never two owners at once."""
+restarts, leases kept on an event loop starved by ingest, and, replayed from every worker's
+own/drop log, never two owners at once."""
 
 from __future__ import annotations
 
@@ -240,3 +241,21 @@ async def test_a_starved_loop_renews_every_lease_in_time(workers: Start, tmp_pat
     for w in (w1, w2):
         await w.flush_log()
     assert drops(logs) == before
+
+
+async def test_a_starved_loop_takes_a_dead_peers_slots_and_keeps_its_own(
+    workers: Start, tmp_path: Path
+) -> None:
+    # Claims run after the renewals and before the next round's: 32 creates one after
+    # another delayed those renewals past the fence.
+    w1, w2 = await workers("w1", slots=64), await workers("w2", slots=64)
+    await until("32/32", lambda: len(w1.owned()) == len(w2.owned()) == 32)
+    await w1.flush_log()
+    log = tmp_path / "w1.log"
+    before = drops([log])
+    async with starved_loop():
+        await w2.stop(release=False)  # as a kill: its keys stay until they expire
+        await until("w1 owns every slot", lambda: len(w1.owned()) == 64, timeout=3 * TAKEOVER_BOUND)
+    await w1.flush_log()
+    assert drops([log]) == before
+    no_overlap(sorted(tmp_path.glob("w*.log")))

@@ -7,7 +7,8 @@ Every TTL/3 a worker:
 2. renews each slot it owns, all at once, with a compare-and-set on the key's revision (a
    failure means someone else holds it now: the slot is dropped at once);
 3. releases the slots above its share (a delete, also compare-and-set);
-4. creates free slots (``create`` succeeds only if the key is absent) up to its share.
+4. creates free slots (``create`` succeeds only if the key is absent) up to its share: it
+   reads the other slots' keys at once, and creates as many free ones at once as it lacks.
 
 A slot whose last successful renewal was *sent* more than 0.8·TTL ago is fenced: the worker
 stops acting for it before the key can expire and be created by another worker (a full TTL
@@ -28,7 +29,7 @@ import time
 from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Final, TypeVar, cast
 
 from nats.aio.client import Client
 from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
@@ -42,6 +43,7 @@ SLOTS_BUCKET: Final = "kc_slots"
 WORKERS_BUCKET: Final = "kc_workers"
 FENCE_AT: Final = 0.8
 """Of the TTL: a slot not renewed for this long is no longer acted on."""
+T = TypeVar("T")
 
 
 @dataclass
@@ -154,24 +156,7 @@ class Leases:
             with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
                 await self._kv.delete(slot_key(slot), last=held.revision)
             self._drop(slot, "release")
-        for slot in range(self.slots):
-            if len(self._held) >= share:
-                break
-            if slot in self._held:
-                continue
-            sent = time.monotonic()
-            try:
-                revision = await self._kv.create(slot_key(slot), self._value(0))
-            except KeyWrongLastSequenceError:
-                continue  # someone owns it
-            except KeyNotFoundError:
-                # nats-py's create reads the key back after a failed compare-and-set; a
-                # lease expiring in between fails that read. The slot is free next round.
-                continue
-            self._held[slot] = Held(revision, revision, sent)
-            self._write("own", slot, revision)
-            if self._on_change:
-                self._on_change(slot, revision, "")
+        await self._claim(share)
 
     async def _renew(self, slot: int, held: Held) -> None:
         assert self._kv is not None
@@ -182,6 +167,44 @@ class Leases:
             held.renewed_sent = sent
         except (KeyWrongLastSequenceError, KeyNotFoundError):
             self._drop(slot, "lost")
+
+    async def _claim(self, share: int) -> None:
+        # Every other slot's key is read at once, then free slots are created, as many at
+        # once as the share lacks (more would go back next round, printers and all). Slot by
+        # slot, a create cost two KV calls per slot a peer holds, and a worker below its share
+        # delayed the next round's renewals past the fence.
+        if len(self._held) >= share:
+            return
+        others = [slot for slot in range(self.slots) if slot not in self._held]
+        taken = await _all(self._taken(slot) for slot in others)
+        free = [slot for slot, busy in zip(others, taken, strict=True) if not busy]
+        while free and (need := share - len(self._held)) > 0:
+            batch, free = free[:need], free[need:]
+            await _all(self._create(slot) for slot in batch)
+
+    async def _taken(self, slot: int) -> bool:
+        assert self._kv is not None
+        try:
+            await self._kv.get(slot_key(slot))
+        except KeyNotFoundError:  # never written, expired, or deleted
+            return False
+        return True
+
+    async def _create(self, slot: int) -> None:
+        assert self._kv is not None
+        sent = time.monotonic()
+        try:
+            revision = await self._kv.create(slot_key(slot), self._value(0))
+        except KeyWrongLastSequenceError:
+            return  # taken since it was read
+        except KeyNotFoundError:
+            # nats-py's create reads the key back after a failed compare-and-set; a lease
+            # expiring in between fails that read. The slot is free next round.
+            return
+        self._held[slot] = Held(revision, revision, sent)
+        self._write("own", slot, revision)
+        if self._on_change:
+            self._on_change(slot, revision, "")
 
     def _value(self, epoch: int) -> bytes:
         return json.dumps({"w": self.worker, "epoch": epoch}).encode()
@@ -211,12 +234,14 @@ class Leases:
             await asyncio.to_thread(_append, self._log_path, lines)
 
 
-async def _all(calls: Iterable[Awaitable[None]]) -> None:
+async def _all(calls: Iterable[Awaitable[T]]) -> list[T]:
     # Every call runs to its end before the first error is raised: a broker error on one
     # slot must not leave the others' replies unrecorded (their revisions would be stale).
-    for result in await asyncio.gather(*calls, return_exceptions=True):
+    results = await asyncio.gather(*calls, return_exceptions=True)
+    for result in results:
         if isinstance(result, BaseException):
             raise result
+    return cast(list[T], results)
 
 
 def _append(path: Path, lines: list[str]) -> None:
