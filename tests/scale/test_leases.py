@@ -259,3 +259,31 @@ async def test_a_starved_loop_takes_a_dead_peers_slots_and_keeps_its_own(
     await w1.flush_log()
     assert drops([log]) == before
     no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_released_slot_is_let_go_before_its_delete_is_answered(
+    workers: Start, tmp_path: Path
+) -> None:
+    # A peer may create the key as soon as the delete lands; on a starved loop the delete's
+    # reply comes turns later, and until then the releasing worker still acted for it.
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    assert w1._kv is not None
+    real_delete = w1._kv.delete
+    peer_owned: list[bool] = []
+
+    async def late_reply(key: str, last: int | None = None, **kw: object) -> bool:
+        deleted = await real_delete(key, last=last, **kw)  # type: ignore[arg-type]
+        slot = int(key.removeprefix("s"))
+        if not peer_owned:  # the first release: its reply is read once w2 owns the slot
+            await until(f"w2 owns slot {slot}", lambda: slot in w2.owned())
+            peer_owned.append(slot in w1.owned())
+        return deleted
+
+    w1._kv.delete = late_reply  # type: ignore[method-assign]
+    w2 = await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    assert peer_owned == [False]  # w1 no longer acted for it
+    for w in (w1, w2):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))

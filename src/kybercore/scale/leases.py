@@ -97,11 +97,12 @@ class Leases:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
         for slot in list(self._held):
+            held = self._held[slot]
+            self._drop(slot, "stop")  # before the delete, as a release is
             if release:
                 with contextlib.suppress(Exception):  # the broker may be gone: TTL frees it
                     assert self._kv is not None
-                    await self._kv.delete(slot_key(slot), last=self._held[slot].revision)
-            self._drop(slot, "stop")
+                    await self._kv.delete(slot_key(slot), last=held.revision)
         await self.flush_log()
 
     def epoch(self, slot: int) -> int | None:
@@ -152,10 +153,12 @@ class Leases:
         await _all(self._renew(slot, held) for slot, held in list(self._held.items()))
         self.owned()
         for slot in sorted(self._held)[share:]:
+            # Let go before the delete is sent: a peer may create the key as soon as the
+            # delete lands, long before its reply is read on a starved loop.
             held = self._held[slot]
+            self._drop(slot, "release")
             with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
                 await self._kv.delete(slot_key(slot), last=held.revision)
-            self._drop(slot, "release")
         await self._claim(share)
 
     async def _renew(self, slot: int, held: Held) -> None:
