@@ -1,19 +1,24 @@
 """Slot ownership by leases on a real nats-server: an even split, takeover when a worker
 dies, rebalancing when one joins, self-fencing when one stalls, recovery after the broker
-restarts, and, replayed from every worker's own/drop log, never two owners at once."""
+restarts, leases kept on an event loop starved by ingest, and, replayed from every worker's
+own/drop log, never two owners at once."""
 
 from __future__ import annotations
 
 import asyncio
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Protocol
 
 import pytest
 from nats.aio.client import Client
+from nats.js.errors import KeyWrongLastSequenceError
 
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.leases import FENCE_AT, Leases
+from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases
+from kybercore.scale.slots import slot_key
 from tests.scale.replay import no_overlap
 
 SLOTS = 16
@@ -21,16 +26,22 @@ TTL = 3.0
 # Takeover is due TTL + TTL/3 after a worker's last renewal (~4 s): 5× slack.
 TAKEOVER_BOUND = 5 * (TTL + TTL / 3)
 
-Start = Callable[[str], Awaitable[Leases]]
+TURN = 0.015
+"""Seconds each turn of a starved event loop costs (ingest at 20,000 updates a second): a
+KV call waits for about 7 turns, a renewal round of 32 slots one after another 3.4 s."""
+
+
+class Start(Protocol):
+    def __call__(self, name: str, slots: int = SLOTS) -> Awaitable[Leases]: ...
 
 
 @pytest.fixture
 async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Start]:
     started: list[tuple[Leases, Client]] = []
 
-    async def start(name: str) -> Leases:
+    async def start(name: str, slots: int = SLOTS) -> Leases:
         nc = await connect(nats_server.url, name)
-        leases = Leases(nc, name, slots=SLOTS, ttl=TTL, log_path=tmp_path / f"{name}.log")
+        leases = Leases(nc, name, slots=slots, ttl=TTL, log_path=tmp_path / f"{name}.log")
         await leases.start()
         started.append((leases, nc))
         return leases
@@ -132,6 +143,147 @@ async def test_ownership_comes_back_after_the_broker_restarts(
         lambda: set(w1.owned()) | set(w2.owned()) == set(range(SLOTS)),
         timeout=5 * (TTL + 5),
     )
+    for w in (w1, w2):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_claim_answered_after_the_peers_lease_expired_skips_only_that_slot(
+    workers: Start, nats_server: LocalServer
+) -> None:
+    # nats-py's create, when its compare-and-set fails, reads the key back to tell a live
+    # key from a deleted one; a lease that expires in between (a starved loop) makes that
+    # read raise "key not found". It must cost that slot this round, not the whole round.
+    w1 = await workers("w1")
+    assert w1._task is not None
+    assert w1._kv is not None
+    w1._task.cancel()  # rounds by hand
+    peer = await connect(nats_server.url, "peer")
+    try:
+        js = peer.jetstream()
+        slots = await js.key_value(SLOTS_BUCKET)
+        contested = slot_key(0)
+        real_update = w1._kv._update
+
+        async def late_reply(key: str, value: bytes, last: int | None = None, **kw: object) -> int:
+            if key != contested or last:
+                return await real_update(key, value, last=last, **kw)  # type: ignore[arg-type]
+            await slots.create(key, b'{"w": "peer", "epoch": 0}')  # the peer gets there first
+            try:
+                return await real_update(key, value, last=last, **kw)  # type: ignore[arg-type]
+            except KeyWrongLastSequenceError:
+                # ...and its lease runs out before this reply is read. Gone as by its TTL,
+                # without waiting for it: a purge of the stream's subject leaves no tombstone.
+                await js.purge_stream(f"KV_{SLOTS_BUCKET}", subject=f"$KV.{SLOTS_BUCKET}.{key}")
+                raise
+
+        w1._kv._update = late_reply  # type: ignore[method-assign]
+        await w1.round()
+        assert set(w1.owned()) == set(range(1, SLOTS))
+        w1._kv._update = real_update  # type: ignore[method-assign]
+        await w1.round()  # free again: taken
+        assert set(w1.owned()) == set(range(SLOTS))
+    finally:
+        await peer.close()
+
+
+@asynccontextmanager
+async def starved_loop() -> AsyncIterator[None]:
+    """Every turn of the event loop costs ``TURN`` seconds while inside."""
+
+    async def hog() -> None:
+        while True:
+            time.sleep(TURN)  # blocks the loop on purpose: the stand-in for ingest's work
+            await asyncio.sleep(0)
+
+    task = asyncio.create_task(hog())
+    try:
+        yield
+    finally:
+        task.cancel()
+
+
+def rounds_of(leases: Leases) -> list[float]:
+    """The monotonic() ends of ``leases``' rounds from now on."""
+    ended: list[float] = []
+    real_round = leases.round
+
+    async def counted() -> None:
+        await real_round()
+        ended.append(time.monotonic())
+
+    leases.round = counted  # type: ignore[method-assign]
+    return ended
+
+
+def drops(paths: list[Path]) -> list[str]:
+    return [line for path in paths for line in path.read_text().splitlines() if '"drop"' in line]
+
+
+async def test_a_starved_loop_renews_every_lease_in_time(workers: Start, tmp_path: Path) -> None:
+    # 64 slots, as deployed: 32 renewals a round. Sent one after another, each waiting for
+    # its reply, a round outlasted the fence and every lease was dropped and claimed again.
+    w1, w2 = await workers("w1", slots=64), await workers("w2", slots=64)
+    await until("32/32", lambda: len(w1.owned()) == len(w2.owned()) == 32)
+    for w in (w1, w2):
+        await w.flush_log()
+    logs = sorted(tmp_path.glob("w*.log"))
+    before = drops(logs)  # w1 started alone, took every slot and released half to w2
+    ended = [rounds_of(w1), rounds_of(w2)]
+
+    def three_rounds_each() -> bool:
+        w1.owned(), w2.owned()  # fences what is late, as a worker's reconcile does
+        return min(len(e) for e in ended) >= 3
+
+    async with starved_loop():
+        await until("three starved rounds each", three_rounds_each, timeout=3 * TAKEOVER_BOUND)
+    assert len(w1.owned()) == len(w2.owned()) == 32
+    for w in (w1, w2):
+        await w.flush_log()
+    assert drops(logs) == before
+
+
+async def test_a_starved_loop_takes_a_dead_peers_slots_and_keeps_its_own(
+    workers: Start, tmp_path: Path
+) -> None:
+    # Claims run after the renewals and before the next round's: 32 creates one after
+    # another delayed those renewals past the fence.
+    w1, w2 = await workers("w1", slots=64), await workers("w2", slots=64)
+    await until("32/32", lambda: len(w1.owned()) == len(w2.owned()) == 32)
+    await w1.flush_log()
+    log = tmp_path / "w1.log"
+    before = drops([log])
+    async with starved_loop():
+        await w2.stop(release=False)  # as a kill: its keys stay until they expire
+        await until("w1 owns every slot", lambda: len(w1.owned()) == 64, timeout=3 * TAKEOVER_BOUND)
+    await w1.flush_log()
+    assert drops([log]) == before
+    no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_released_slot_is_let_go_before_its_delete_is_answered(
+    workers: Start, tmp_path: Path
+) -> None:
+    # A peer may create the key as soon as the delete lands; on a starved loop the delete's
+    # reply comes turns later, and until then the releasing worker still acted for it.
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    assert w1._kv is not None
+    real_delete = w1._kv.delete
+    peer_owned: list[bool] = []
+
+    async def late_reply(key: str, last: int | None = None, **kw: object) -> bool:
+        deleted = await real_delete(key, last=last, **kw)  # type: ignore[arg-type]
+        slot = int(key.removeprefix("s"))
+        if not peer_owned:  # the first release: its reply is read once w2 owns the slot
+            await until(f"w2 owns slot {slot}", lambda: slot in w2.owned())
+            peer_owned.append(slot in w1.owned())
+        return deleted
+
+    w1._kv.delete = late_reply  # type: ignore[method-assign]
+    w2 = await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    assert peer_owned == [False]  # w1 no longer acted for it
     for w in (w1, w2):
         await w.flush_log()
     no_overlap(sorted(tmp_path.glob("w*.log")))

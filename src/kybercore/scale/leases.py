@@ -4,10 +4,11 @@ Every TTL/3 a worker:
 
 1. writes its heartbeat into ``kc_workers`` (a bucket whose keys expire after the TTL), and
    counts the live workers: its fair share is ``ceil(S / workers)``;
-2. renews each slot it owns with a compare-and-set on the key's revision (a failure means
-   someone else holds it now: the slot is dropped at once);
+2. renews each slot it owns, all at once, with a compare-and-set on the key's revision (a
+   failure means someone else holds it now: the slot is dropped at once);
 3. releases the slots above its share (a delete, also compare-and-set);
-4. creates free slots (``create`` succeeds only if the key is absent) up to its share.
+4. creates free slots (``create`` succeeds only if the key is absent) up to its share: it
+   reads the other slots' keys at once, and creates as many free ones at once as it lacks.
 
 A slot whose last successful renewal was *sent* more than 0.8·TTL ago is fenced: the worker
 stops acting for it before the key can expire and be created by another worker (a full TTL
@@ -25,10 +26,10 @@ import contextlib
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Final, TypeVar, cast
 
 from nats.aio.client import Client
 from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
@@ -42,6 +43,7 @@ SLOTS_BUCKET: Final = "kc_slots"
 WORKERS_BUCKET: Final = "kc_workers"
 FENCE_AT: Final = 0.8
 """Of the TTL: a slot not renewed for this long is no longer acted on."""
+T = TypeVar("T")
 
 
 @dataclass
@@ -95,11 +97,12 @@ class Leases:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
         for slot in list(self._held):
+            held = self._held[slot]
+            self._drop(slot, "stop")  # before the delete, as a release is
             if release:
                 with contextlib.suppress(Exception):  # the broker may be gone: TTL frees it
                     assert self._kv is not None
-                    await self._kv.delete(slot_key(slot), last=self._held[slot].revision)
-            self._drop(slot, "stop")
+                    await self._kv.delete(slot_key(slot), last=held.revision)
         await self.flush_log()
 
     def epoch(self, slot: int) -> int | None:
@@ -145,34 +148,66 @@ class Leases:
         except NoKeysError:
             workers = 1
         share = fair_share(self.slots, workers)
-        for slot, held in list(self._held.items()):
-            sent = time.monotonic()
-            try:
-                value = self._value(held.epoch)
-                held.revision = await self._kv.update(slot_key(slot), value, last=held.revision)
-                held.renewed_sent = sent
-            except (KeyWrongLastSequenceError, KeyNotFoundError):
-                self._drop(slot, "lost")
+        # All at once: a KV call waits for several turns of the event loop, and on a loop
+        # starved by ingest 32 renewals in turn outlasted the fence (3.4 s at 15 ms a turn).
+        await _all(self._renew(slot, held) for slot, held in list(self._held.items()))
         self.owned()
         for slot in sorted(self._held)[share:]:
+            # Let go before the delete is sent: a peer may create the key as soon as the
+            # delete lands, long before its reply is read on a starved loop.
             held = self._held[slot]
+            self._drop(slot, "release")
             with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
                 await self._kv.delete(slot_key(slot), last=held.revision)
-            self._drop(slot, "release")
-        for slot in range(self.slots):
-            if len(self._held) >= share:
-                break
-            if slot in self._held:
-                continue
-            sent = time.monotonic()
-            try:
-                revision = await self._kv.create(slot_key(slot), self._value(0))
-            except KeyWrongLastSequenceError:
-                continue  # someone owns it
-            self._held[slot] = Held(revision, revision, sent)
-            self._write("own", slot, revision)
-            if self._on_change:
-                self._on_change(slot, revision, "")
+        await self._claim(share)
+
+    async def _renew(self, slot: int, held: Held) -> None:
+        assert self._kv is not None
+        sent = time.monotonic()
+        try:
+            value = self._value(held.epoch)
+            held.revision = await self._kv.update(slot_key(slot), value, last=held.revision)
+            held.renewed_sent = sent
+        except (KeyWrongLastSequenceError, KeyNotFoundError):
+            self._drop(slot, "lost")
+
+    async def _claim(self, share: int) -> None:
+        # Every other slot's key is read at once, then free slots are created, as many at
+        # once as the share lacks (more would go back next round, printers and all). Slot by
+        # slot, a create cost two KV calls per slot a peer holds, and a worker below its share
+        # delayed the next round's renewals past the fence.
+        if len(self._held) >= share:
+            return
+        others = [slot for slot in range(self.slots) if slot not in self._held]
+        taken = await _all(self._taken(slot) for slot in others)
+        free = [slot for slot, busy in zip(others, taken, strict=True) if not busy]
+        while free and (need := share - len(self._held)) > 0:
+            batch, free = free[:need], free[need:]
+            await _all(self._create(slot) for slot in batch)
+
+    async def _taken(self, slot: int) -> bool:
+        assert self._kv is not None
+        try:
+            await self._kv.get(slot_key(slot))
+        except KeyNotFoundError:  # never written, expired, or deleted
+            return False
+        return True
+
+    async def _create(self, slot: int) -> None:
+        assert self._kv is not None
+        sent = time.monotonic()
+        try:
+            revision = await self._kv.create(slot_key(slot), self._value(0))
+        except KeyWrongLastSequenceError:
+            return  # taken since it was read
+        except KeyNotFoundError:
+            # nats-py's create reads the key back after a failed compare-and-set; a lease
+            # expiring in between fails that read. The slot is free next round.
+            return
+        self._held[slot] = Held(revision, revision, sent)
+        self._write("own", slot, revision)
+        if self._on_change:
+            self._on_change(slot, revision, "")
 
     def _value(self, epoch: int) -> bytes:
         return json.dumps({"w": self.worker, "epoch": epoch}).encode()
@@ -200,6 +235,16 @@ class Leases:
         lines, self._pending = self._pending, []
         if lines and self._log_path is not None:
             await asyncio.to_thread(_append, self._log_path, lines)
+
+
+async def _all(calls: Iterable[Awaitable[T]]) -> list[T]:
+    # Every call runs to its end before the first error is raised: a broker error on one
+    # slot must not leave the others' replies unrecorded (their revisions would be stale).
+    results = await asyncio.gather(*calls, return_exceptions=True)
+    for result in results:
+        if isinstance(result, BaseException):
+            raise result
+    return cast(list[T], results)
 
 
 def _append(path: Path, lines: list[str]) -> None:
