@@ -54,6 +54,37 @@ async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) 
         await nc.close()
 
 
+async def test_an_import_is_told_in_a_few_calls_not_one_per_printer(
+    nats_server: LocalServer,
+) -> None:
+    # Each call re-applies the whole fleet in a worker: one per entry of a big import
+    # blocked its event loop for minutes (leases expired, sockets churned).
+    nc = await connect(nats_server.url, "test")
+    try:
+        registry = KvRegistry()
+        await registry.open(nc)
+        seen: list[int] = []
+        watcher = asyncio.create_task(registry.watch(lambda ps: seen.append(len(ps))))
+        async with asyncio.timeout(10):
+            while not seen:  # the initial (empty) list
+                await asyncio.sleep(0.01)  # poll the watcher's callbacks, deadline above
+        printers = [
+            PrinterConfig(
+                id=f"p{i}", name=f"P {i}", moonraker_url=f"http://10.0.{i // 250}.{i % 250}"
+            )
+            for i in range(300)
+        ]
+        assert await registry.import_if_empty(printers) == 300
+        async with asyncio.timeout(30):
+            while seen[-1] != 300:
+                await asyncio.sleep(0.05)  # poll the watcher's callbacks, deadline above
+        watcher.cancel()
+        # Created one by one, ~1 ms apart: a handful of calls (a busy machine may add some).
+        assert len(seen) - 1 <= 30, seen
+    finally:
+        await nc.close()
+
+
 async def test_api_keys_live_apart_and_only_workers_read_them(nats_server: LocalServer) -> None:
     nc = await connect(nats_server.url, "test")
     try:

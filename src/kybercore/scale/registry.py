@@ -43,6 +43,11 @@ SECRETS: Final = "kc_secrets"
 PREFIX: Final = "p."
 STORED: Final = SecretStr("stored-in-kc_secrets")
 """A front's stand-in for an API key it does not read."""
+BATCH_SECONDS: Final = 0.05
+"""A change is told once no other has come for this long..."""
+BATCH_MAX_SECONDS: Final = 1.0
+"""...or this long after it came, however many follow (a long import shows as it goes)."""
+_QUIET: Final = object()
 
 OnPrinters = Callable[[list[PrinterConfig]], None]
 
@@ -189,16 +194,29 @@ class KvRegistry:
 
     async def watch(self, on_change: OnPrinters) -> None:
         """Call ``on_change(printers)`` with the whole list now and after every change,
-        forever (run it as a task; cancel it to stop). A broken entry is skipped, logged."""
+        forever (run it as a task; cancel it to stop). A broken entry is skipped, logged.
+
+        Changes that come together (an import, a bulk edit) make one call: every call
+        re-applies the whole fleet, so one per entry of a 2,000-printer import blocked a
+        worker's event loop for minutes and its leases expired."""
         current: dict[str, PrinterConfig] = {}
         watcher = await self.kv.watchall()
         initial_done = False
+        due: float | None = None  # when the changes held since the last call must be told
+        loop = asyncio.get_running_loop()
         try:
             while True:
+                wait = 3600.0 if due is None else min(BATCH_SECONDS, max(due - loop.time(), 0))
                 try:
-                    entry = await watcher.updates(timeout=3600)  # type: ignore[no-untyped-call]
+                    entry = await watcher.updates(timeout=wait)  # type: ignore[no-untyped-call]
                 except TimeoutError:
-                    continue
+                    entry = _QUIET
+                if entry is _QUIET or (due is not None and loop.time() >= due):
+                    if due is not None:
+                        due = None
+                        on_change(fleet_order(list(current.values())))
+                    if entry is _QUIET:
+                        continue
                 if entry is None:  # the end of the initial values
                     initial_done = True
                     on_change(fleet_order(list(current.values())))
@@ -214,8 +232,8 @@ class KvRegistry:
                     except ValueError as exc:
                         log.warning("registry: printer %s skipped: %s", printer_id, exc)
                         continue
-                if initial_done:
-                    on_change(fleet_order(list(current.values())))
+                if initial_done and due is None:
+                    due = loop.time() + BATCH_MAX_SECONDS
         finally:
             with contextlib.suppress(Exception):
                 await watcher.stop()  # type: ignore[no-untyped-call]
