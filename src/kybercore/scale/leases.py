@@ -97,7 +97,9 @@ class Leases:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
         for slot in list(self._held):
-            held = self._held[slot]
+            held = self._held.get(slot)
+            if held is None:  # fenced while an earlier delete was awaited
+                continue
             self._drop(slot, "stop")  # before the delete, as a release is
             if release:
                 with contextlib.suppress(Exception):  # the broker may be gone: TTL frees it
@@ -155,7 +157,9 @@ class Leases:
         for slot in sorted(self._held)[share:]:
             # Let go before the delete is sent: a peer may create the key as soon as the
             # delete lands, long before its reply is read on a starved loop.
-            held = self._held[slot]
+            held = self._held.get(slot)
+            if held is None:  # fenced (the worker asked for its epoch) during a delete
+                continue
             self._drop(slot, "release")
             with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
                 await self._kv.delete(slot_key(slot), last=held.revision)
