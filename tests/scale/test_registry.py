@@ -13,6 +13,7 @@ from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.registry import STORED, KvRegistry
+from tests.helpers import wait_for
 
 
 async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) -> None:
@@ -65,9 +66,7 @@ async def test_an_import_is_told_in_a_few_calls_not_one_per_printer(
         await registry.open(nc)
         seen: list[int] = []
         watcher = asyncio.create_task(registry.watch(lambda ps: seen.append(len(ps))))
-        async with asyncio.timeout(10):
-            while not seen:  # the initial (empty) list
-                await asyncio.sleep(0.01)  # poll the watcher's callbacks, deadline above
+        await wait_for(lambda: bool(seen), 10, "the initial (empty) list")
         printers = [
             PrinterConfig(
                 id=f"p{i}", name=f"P {i}", moonraker_url=f"http://10.0.{i // 250}.{i % 250}"
@@ -75,9 +74,7 @@ async def test_an_import_is_told_in_a_few_calls_not_one_per_printer(
             for i in range(300)
         ]
         assert await registry.import_if_empty(printers) == 300
-        async with asyncio.timeout(30):
-            while seen[-1] != 300:
-                await asyncio.sleep(0.05)  # poll the watcher's callbacks, deadline above
+        await wait_for(lambda: seen[-1] == 300, 30, "all 300 printers told")
         watcher.cancel()
         # Created one by one, ~1 ms apart: a handful of calls (a busy machine may add some).
         assert len(seen) - 1 <= 30, seen

@@ -211,12 +211,11 @@ class KvRegistry:
                     entry = await watcher.updates(timeout=wait)  # type: ignore[no-untyped-call]
                 except TimeoutError:
                     entry = _QUIET
-                if entry is _QUIET or (due is not None and loop.time() >= due):
-                    if due is not None:
-                        due = None
-                        on_change(fleet_order(list(current.values())))
-                    if entry is _QUIET:
-                        continue
+                if due is not None and (entry is _QUIET or loop.time() >= due):
+                    due = None
+                    on_change(fleet_order(list(current.values())))
+                if entry is _QUIET:
+                    continue
                 if entry is None:  # the end of the initial values
                     initial_done = True
                     on_change(fleet_order(list(current.values())))
