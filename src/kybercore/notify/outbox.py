@@ -31,6 +31,9 @@ log = logging.getLogger(__name__)
 
 MAX_SENDING: Final = 20
 """Deliveries sent at once (each to a different channel or printer)."""
+STORE_CALLS_AT_ONCE: Final = 2
+"""Database calls the sends make at once (a snapshot read, an outcome written): the sends
+wait on their receivers, not on the database, and the fleet's own writes share its pool."""
 STOP_GRACE: Final = 5.0
 """Seconds :meth:`Outbox.stop` lets sends in flight finish, by default, before cutting
 them off."""
@@ -65,6 +68,7 @@ class Outbox:
         self._stopping = False
         self._sending: dict[int, asyncio.Task[None]] = {}
         self._outcomes: dict[int, asyncio.Event] = {}
+        self._store_calls = asyncio.Semaphore(STORE_CALLS_AT_ONCE)
 
     async def start(self) -> None:
         """Start sending, beginning with whatever a previous run left pending."""
@@ -150,7 +154,8 @@ class Outbox:
     async def _send(self, due: DueDelivery) -> None:
         try:
             result = await self._attempt(due)
-            await self._record(due, result)
+            async with self._store_calls:
+                await self._record(due, result)
         except Exception:
             log.exception("Notification delivery %d: could not send or record it", due.id)
         finally:
@@ -163,7 +168,8 @@ class Outbox:
         title, body = render(due.event, due.rules.language)
         snapshot = None
         if due.has_snapshot and due.rules.attach_snapshot:
-            snapshot = await self._store.snapshot(due.event.id)
+            async with self._store_calls:
+                snapshot = await self._store.snapshot(due.event.id)
         if due.channel_kind == "webhook":
             return await send_webhook(
                 self._http, due.target, due.secret, due.event, title, body, snapshot
