@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from kybercore.scale.follow import STALE_SECONDS, FleetCopy
+from kybercore.scale.follow import STALE_SECONDS, FleetCopy, WorkerSeen
 
 
 def batch(epoch: int, seq: int, **patches: Any) -> dict[str, Any]:
@@ -63,3 +63,26 @@ def test_a_silent_slot_goes_stale_and_comes_back() -> None:
     fleet.batch(2, batch(1, 1), now=STALE_SECONDS + 1)  # a heartbeat
     fleet.check(now=STALE_SECONDS + 1)
     assert not fleet.is_stale(2)
+
+
+def test_each_worker_is_seen_by_its_fresh_slots_and_its_latest_loop_lag() -> None:
+    fleet, _ = copy()
+
+    def said(slot: int, worker: str, lag: float, now: float) -> None:
+        fleet.batch(slot, {**batch(1, 1), "worker": worker, "lag": lag}, now=now)
+
+    said(0, "w1", 0.01, now=0.0)
+    said(1, "w1", 0.4, now=0.5)  # w1's latest word
+    said(2, "w2", 0.02, now=0.0)
+    fleet.check(now=1.0)
+    assert fleet.workers() == {"w1": WorkerSeen(2, 0.4), "w2": WorkerSeen(1, 0.02)}
+    # w2 goes silent; w1 takes its slot over and is heard again, on time now.
+    fleet.check(now=STALE_SECONDS + 0.4)
+    said(2, "w1", 0.0, now=STALE_SECONDS + 0.5)
+    said(0, "w1", 0.0, now=STALE_SECONDS + 0.5)
+    fleet.check(now=STALE_SECONDS + 0.6)
+    assert fleet.workers() == {"w1": WorkerSeen(2, 0.0)}  # slot 1 went stale meanwhile
+    # A snapshot says who answered it, too.
+    fleet.snapshot(3, {"epoch": 1, "seq": 1, "worker": "w3", "lag": 1.5, "views": {}}, 3.0)
+    fleet.check(now=3.0)
+    assert fleet.workers()["w3"] == WorkerSeen(1, 1.5)

@@ -14,13 +14,14 @@ from kybercore.sim.stack import PrinterStack
 from tests.browser_mirror import BrowserMirror
 from tests.helpers import wait_for
 from tests.metrics_scrape import (
+    Samples,
     assert_printers_as_viewed,
     by_state,
     jobs_as_in_stats,
     parse,
     same_instant,
 )
-from tests.scale.cluster import Cluster
+from tests.scale.cluster import SLOTS, Cluster
 from tests.scale.test_front_queue import PRINT_WITHIN, SHORT
 
 pytestmark = pytest.mark.integration
@@ -35,6 +36,12 @@ async def scrape(api: httpx.AsyncClient) -> dict[str, dict[tuple[tuple[str, str]
     answer = await api.get("/metrics")
     assert answer.status_code == 200, answer.text
     return parse(answer.text)
+
+
+def worker_slots(samples: Samples) -> tuple[set[str], float]:
+    """The workers ``kybercore_worker_slots`` names, and the slots they report in all."""
+    slots = {dict(labels)["worker"]: n for labels, n in samples["kybercore_worker_slots"].items()}
+    return set(slots), sum(slots.values())
 
 
 # A cluster to start, a print, then the front's next reads: more than the default 120 s may
@@ -82,6 +89,12 @@ async def test_a_fronts_metrics_count_its_printers_and_read_the_shared_database(
         except AssertionError as failed:
             raise AssertionError(f"{failed}; the metrics and the ledger showed {seen}") from None
         await wait_for(lambda: jobs_as_in_stats(api), READ_WITHIN, "jobs as in /api/stats")
+        shared = (set(cluster.workers), SLOTS)
+
+        async def every_worker_holds_slots() -> bool:
+            return worker_slots(await scrape(api)) == shared
+
+        await wait_for(every_worker_holds_slots, STALE_WITHIN, "every worker's share reported")
 
         async with BrowserMirror(cluster.front.ws_url):
             views, samples = await same_instant(api)
@@ -99,6 +112,11 @@ async def test_a_fronts_metrics_count_its_printers_and_read_the_shared_database(
     }
     assert samples["kybercore_browser_clients"][()] == health["browsers"] >= 1
     assert samples["kybercore_event_loop_lag_seconds"][()] >= 0
+    # Each worker, by the slots it reports and how late its loop runs.
+    assert worker_slots(samples) == shared, samples.get("kybercore_worker_slots")
+    lags = samples["kybercore_worker_event_loop_lag_seconds"]
+    assert {dict(labels)["worker"] for labels in lags} == set(cluster.workers)
+    assert all(0 <= lag < 60 for lag in lags.values()), lags
     # Counted by the workers holding the sessions: a front leaves them out.
     assert "kybercore_moonraker_reconnects_total" not in samples
 
@@ -125,3 +143,4 @@ async def test_a_printer_no_worker_reports_is_stale_in_a_fronts_metrics(
     for name in ("kybercore_heater_temperature_celsius", "kybercore_heater_target_celsius"):
         assert name not in samples, name
     assert "kybercore_print_progress_ratio" not in samples
+    assert "kybercore_worker_slots" not in samples  # no worker reports anything

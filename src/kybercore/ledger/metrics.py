@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any, Final, Protocol
 
@@ -66,6 +66,8 @@ class Snapshot:
     reconnects: dict[str, int]
     browsers: int
     loop_lag: float
+    workers: dict[str, tuple[int, float]] = field(default_factory=dict)
+    """On a front on NATS: each worker reporting fresh slots, as (slots, its loop's lag)."""
 
 
 class Source(Protocol):
@@ -127,6 +129,26 @@ class _Collector(Collector):
             "How late the event loop last ran a timer (0.5 s period)",
             value=snapshot.loop_lag,
         )
+        yield from _worker_metrics(snapshot.workers)
+
+
+def _worker_metrics(workers: dict[str, tuple[int, float]]) -> Iterator[Metric]:
+    slots = GaugeMetricFamily(
+        "kybercore_worker_slots",
+        "Slots an ingest worker reports fresh, as this front hears them (none on serve)",
+        labels=["worker"],
+    )
+    lag = GaugeMetricFamily(
+        "kybercore_worker_event_loop_lag_seconds",
+        "How late an ingest worker's event loop runs, by its latest message: past about 1 s "
+        "its printers turn stale (none on serve)",
+        labels=["worker"],
+    )
+    for worker, (count, seconds) in sorted(workers.items()):
+        slots.add_metric([worker], count)
+        lag.add_metric([worker], seconds)
+    yield slots
+    yield lag
 
 
 def _printer_metrics(views: list[dict[str, Any]]) -> Iterator[Metric]:

@@ -35,6 +35,20 @@ class SlotCopy:
     waiting: list[dict[str, Any]] = field(default_factory=list)
     """Batches received while waiting for a snapshot."""
     stale: bool = True
+    worker: str = ""
+    """The owner that last spoke for the slot (its batches, heartbeats and snapshots)."""
+    lag: float = 0.0
+    """How late that owner's event loop was, as its last message said."""
+
+
+@dataclass(frozen=True)
+class WorkerSeen:
+    """A worker as a front sees it through the slots it reports."""
+
+    slots: int
+    """Fresh slots it reports."""
+    loop_lag: float
+    """How late its event loop was, by its latest message (seconds)."""
 
 
 Changed = Callable[[str], None]
@@ -70,6 +84,7 @@ class FleetCopy:
         if epoch < copy.epoch:
             return False
         copy.heard = now
+        _heard_from(copy, body)
         if epoch > copy.epoch:
             copy.epoch, copy.synced, copy.waiting = epoch, False, [body]
             return True
@@ -91,6 +106,7 @@ class FleetCopy:
         if epoch < copy.epoch:
             return True
         copy.epoch, copy.seq, copy.synced, copy.heard = epoch, int(body["seq"]), True, now
+        _heard_from(copy, body)
         for printer_id, view in body["views"].items():
             self.views[printer_id] = view
             self.members.setdefault(slot, set()).add(printer_id)
@@ -135,3 +151,20 @@ class FleetCopy:
     def is_stale(self, slot: int) -> bool:
         """Whether the slot's owner has been silent too long (or was never heard)."""
         return self.slots[slot].stale
+
+    def workers(self) -> dict[str, WorkerSeen]:
+        """The workers reporting fresh slots now: how many each, and its loop's lag."""
+        latest: dict[str, SlotCopy] = {}
+        counts: dict[str, int] = {}
+        for copy in self.slots:
+            if copy.stale or not copy.worker:
+                continue
+            counts[copy.worker] = counts.get(copy.worker, 0) + 1
+            if copy.worker not in latest or copy.heard > latest[copy.worker].heard:
+                latest[copy.worker] = copy
+        return {w: WorkerSeen(counts[w], latest[w].lag) for w in sorted(counts)}
+
+
+def _heard_from(copy: SlotCopy, body: dict[str, Any]) -> None:
+    copy.worker = str(body.get("worker", ""))
+    copy.lag = float(body.get("lag", 0.0))

@@ -9,7 +9,9 @@
 - The queue's depth and gates, and the jobs by outcome: read from the shared database in
   the background by the ledger's own readers (:mod:`kybercore.ledger.figures`), never at a
   scrape. The job counts group the whole history table, so they are read less often.
-- The browsers and the event loop's lag: this front's.
+- The browsers and the event loop's lag: this front's; and each worker's slots and loop
+  lag, as its latest patch batch or heartbeat says (a worker whose loop runs a second late
+  is near the point where its printers turn stale).
 
 Moonraker's reconnects are counted where the sessions are, in the ingest workers: a front
 leaves them out rather than fetch them from every worker at every scrape.
@@ -105,4 +107,5 @@ class FrontMetrics:
             reconnects={},
             browsers=self._fleet.hub.client_count,
             loop_lag=self._lag.seconds,
+            workers={w: (s.slots, s.loop_lag) for w, s in self._fleet.copy.workers().items()},
         )

@@ -5,7 +5,8 @@ It holds slots by lease (:mod:`.leases`), and for the printers of its slots it r
 validated actions (a :class:`FleetService`). Instead of browsers it has NATS:
 
 - once per hub tick, one patch batch per slot on ``kc.s.<slot>.patch``, with the slot's
-  epoch and a sequence number (an empty one each second as a heartbeat);
+  epoch, a sequence number and how late the worker's event loop runs (an empty one each
+  second as a heartbeat);
 - the slot's full views on request at ``kc.s.<slot>.snap`` (a front that starts, or saw a
   gap or a new epoch);
 - commands at ``kc.cmd.<printer id>``: acknowledged at once, then answered with the outcome
@@ -35,6 +36,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
 from kybercore.fleet.service import FleetService
+from kybercore.ledger.figures import LoopLag
 from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig
@@ -118,6 +120,7 @@ class Worker:
         self._cmd_subs: dict[str, Subscription] = {}
         self._outbox: asyncio.Queue[tuple[str, bytes]] = asyncio.Queue()
         self._wake = asyncio.Event()
+        self._lag = LoopLag()
         self._tasks: list[asyncio.Task[None]] = []
 
     async def start(self) -> None:
@@ -131,6 +134,7 @@ class Worker:
             asyncio.create_task(self.registry.watch(self._on_printers), name="registry-watch"),
             asyncio.create_task(self._run(), name="worker-loop"),
             asyncio.create_task(self._send(), name="worker-publisher"),
+            asyncio.create_task(self._lag.run(), name="worker-loop-lag"),
         ]
 
     async def stop(self) -> None:
@@ -248,7 +252,7 @@ class Worker:
         epoch = self.leases.epoch(slot)
         if epoch is None:
             return
-        message = {"epoch": epoch, "seq": self._seq[slot], "worker": self.worker_id, **body}
+        message = {**self._signature(slot, epoch), **body}
         self._sent_at[slot] = time.monotonic()
         self._outbox.put_nowait((patch_subject(slot), dumps(message)))
 
@@ -283,8 +287,16 @@ class Worker:
             for p in self._printers
             if slot_of(p.id, self.slots) == slot and (view := self.service.hub.view(p.id))
         }
-        body = {"epoch": epoch, "seq": self._seq[slot], "worker": self.worker_id, "views": views}
-        await msg.respond(dumps(body))
+        await msg.respond(dumps({**self._signature(slot, epoch), "views": views}))
+
+    def _signature(self, slot: int, epoch: int) -> dict[str, Any]:
+        # The loop's lag lets a front show how near its capacity each worker runs.
+        return {
+            "epoch": epoch,
+            "seq": self._seq[slot],
+            "worker": self.worker_id,
+            "lag": round(self._lag.seconds, 3),
+        }
 
     def owned(self) -> dict[int, int]:
         """``slot → epoch`` of the slots this worker acts for now."""
