@@ -61,6 +61,9 @@ async def pair(nats_server: LocalServer) -> AsyncIterator[tuple[FrontPrinters, S
         cast(FleetService, service), lambda _p: 1, jobfiles=JobFileBucket(worker)
     )
     await worker.subscribe(command_subject(PRINTER), cb=runner.on_message)
+    # The front asks on a connection of its own: the server must hold the subscription
+    # first (a round trip), or a busy machine answers "no responders".
+    await worker.flush()
     yield FrontPrinters(cast(FrontFleet, Front(front))), service
     await runner.stop()
     await front.close()

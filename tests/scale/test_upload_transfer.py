@@ -65,6 +65,9 @@ async def pair(nats_server: LocalServer) -> AsyncIterator[Pair]:
     service = StandIn()
     runner = CommandRunner(cast(FleetService, service), lambda _p: 1, uploads=Uploads(worker))
     await worker.subscribe(command_subject(PRINTER), cb=runner.on_message)
+    # The front asks on a connection of its own: the server must hold the subscription
+    # first (a round trip), or a busy machine answers "no responders".
+    await worker.flush()
     yield Pair(front, worker, service)
     await runner.stop()
     await front.close()
