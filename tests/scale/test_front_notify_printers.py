@@ -68,6 +68,7 @@ def test_a_printer_no_owner_reported_yet_is_connecting() -> None:
     _views, front = printers()
     [seen] = front.all()
     assert (seen.ref.id, seen.observation.connection) == ("p1", "connecting")
+    assert front.ids() == {"p1"}
 
 
 def test_a_stale_view_reads_as_the_owners_last_not_reported() -> None:

@@ -315,3 +315,34 @@ async def test_a_slot_fenced_during_a_release_does_not_fail_the_round(
         await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
     assert fenced
     assert "lease round failed" not in caplog.text
+
+
+async def test_a_slow_count_of_the_workers_does_not_delay_the_renewals(
+    workers: Start, tmp_path: Path
+) -> None:
+    # Counting the workers takes several round trips (an ephemeral consumer), each a few
+    # turns of a starved loop. Renewed after it in the same round, every lease was fenced.
+    w1, w2 = await workers("w1"), await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    await w1.flush_log()
+    log = tmp_path / "w1.log"
+    before = drops([log])
+    assert w1._workers is not None
+    count = w1._workers.keys
+    slow = FENCE_AT * TTL * 1.5  # a FAKE slow broker reply: longer than the fence
+
+    async def slow_count() -> list[str]:
+        await asyncio.sleep(slow)
+        return await count()
+
+    w1._workers.keys = slow_count  # type: ignore[method-assign]
+    ended = rounds_of(w1)
+
+    def two_slow_rounds() -> bool:
+        w1.owned()  # fences what is late, as a worker's reconcile does
+        return len(ended) >= 2
+
+    await until("two slow rounds", two_slow_rounds, timeout=3 * TAKEOVER_BOUND)
+    assert len(w1.owned()) == SLOTS // 2
+    await w1.flush_log()
+    assert drops([log]) == before

@@ -52,6 +52,9 @@ class NotifyPrinters(Protocol):
     def all(self) -> list[Observed]:
         """Every printer of the fleet, as it stands now."""
 
+    def ids(self) -> set[str]:
+        """The ids of every printer of the fleet (without observing each one)."""
+
     def get(self, printer_id: str) -> Observed:
         """One printer as it stands now; a KyberCoreError (UnknownPrinter) when the fleet
         has no such printer."""
@@ -76,6 +79,10 @@ class FleetNotifyPrinters:
     def all(self) -> list[Observed]:
         """Every configured printer, as it stands now."""
         return [_observed(printer) for printer in self._fleet.sessions.all()]
+
+    def ids(self) -> set[str]:
+        """The ids of every configured printer."""
+        return {printer.config.id for printer in self._fleet.sessions.all()}
 
     def get(self, printer_id: str) -> Observed:
         """One printer as it stands now (UnknownPrinter when it is not configured)."""

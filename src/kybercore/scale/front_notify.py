@@ -89,10 +89,14 @@ class FrontNotifyPrinters:
 
     def all(self) -> list[Observed]:
         """Every printer of the registry, as its view stands now."""
-        configs = self._fleet.configs()
-        present = {config.id for config in configs}
+        self.ids()  # forgets the printers gone
+        return [self._observed(config) for config in self._fleet.configs()]
+
+    def ids(self) -> set[str]:
+        """The ids of every printer of the registry."""
+        present = {config.id for config in self._fleet.configs()}
         self._last = {pid: seen for pid, seen in self._last.items() if pid in present}
-        return [self._observed(config) for config in configs]
+        return present
 
     def get(self, printer_id: str) -> Observed:
         """One printer as its view stands now (UnknownPrinter when not in the registry)."""

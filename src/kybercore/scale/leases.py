@@ -1,13 +1,17 @@
 """Which worker owns which slot: leases in a JetStream key-value bucket.
 
-Every TTL/3 a worker:
+Every TTL/3 a worker renews each slot it owns, all at once, with a compare-and-set on the
+key's revision (a failure means someone else holds it now: the slot is dropped at once).
+The renewals run on their own, apart from the rounds that share the slots out: on a loop
+starved by ingest, counting the workers (several round trips) or claiming delayed the
+renewals past the fence, and every lease was dropped and claimed again.
+
+Every TTL/3, too, a round:
 
 1. writes its heartbeat into ``kc_workers`` (a bucket whose keys expire after the TTL), and
    counts the live workers: its fair share is ``ceil(S / workers)``;
-2. renews each slot it owns, all at once, with a compare-and-set on the key's revision (a
-   failure means someone else holds it now: the slot is dropped at once);
-3. releases the slots above its share (a delete, also compare-and-set);
-4. creates free slots (``create`` succeeds only if the key is absent) up to its share: it
+2. releases the slots above its share (a delete, also compare-and-set);
+3. creates free slots (``create`` succeeds only if the key is absent) up to its share: it
    reads the other slots' keys at once, and creates as many free ones at once as it lacks.
 
 A slot whose last successful renewal was *sent* more than 0.8·TTL ago is fenced: the worker
@@ -35,6 +39,7 @@ from nats.aio.client import Client
 from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
 from nats.js.kv import KeyValue
 
+from kybercore.aio import cancel_and_wait
 from kybercore.scale.slots import fair_share, slot_key
 
 log = logging.getLogger(__name__)
@@ -82,6 +87,7 @@ class Leases:
         self._workers: KeyValue | None = None
         self._task: asyncio.Task[None] | None = None
         self._pending: list[str] = []
+        self._flushing = asyncio.Lock()
 
     async def start(self) -> None:
         """Open (or create) the buckets and start the renewal loop."""
@@ -130,18 +136,34 @@ class Leases:
             assert self._workers is not None
             await self._workers.put(self.worker, b"1")
             await asyncio.sleep(self.ttl / 3)
+        # A child of this task: cancelling it (a stop, or a test standing in for a paused
+        # process) stops the renewals too. The methods are looked up at each call (a test
+        # counts the rounds by wrapping them).
+        renewing = asyncio.create_task(self._every_third(lambda: self.renew(), "renewal"))
+        try:
+            await self._every_third(lambda: self.round(), "round")
+        finally:
+            await cancel_and_wait(renewing)
+
+    async def _every_third(self, work: Callable[[], Awaitable[None]], what: str) -> None:
         while True:
             started = time.monotonic()
             try:
-                await self.round()
+                await work()
             except Exception as exc:  # the broker away: fencing covers it; try again
-                log.warning("%s: lease round failed: %s", self.worker, exc)
-                self.owned()  # fence what is too old now
+                log.warning("%s: lease %s failed: %s", self.worker, what, exc)
+            self.owned()  # fence what is too old now
             await self.flush_log()
             await asyncio.sleep(max(0.0, self.ttl / 3 - (time.monotonic() - started)))
 
+    async def renew(self) -> None:
+        """Renew every slot held, all at once: a KV call waits for several turns of the
+        event loop, and on a loop starved by ingest 32 renewals in turn outlasted the fence
+        (3.4 s at 15 ms a turn)."""
+        await _all(self._renew(slot, held) for slot, held in list(self._held.items()))
+
     async def round(self) -> None:
-        """One heartbeat, renew, release and claim pass."""
+        """One heartbeat, release and claim pass."""
         assert self._kv is not None
         assert self._workers is not None
         await self._workers.put(self.worker, b"1")
@@ -150,9 +172,6 @@ class Leases:
         except NoKeysError:
             workers = 1
         share = fair_share(self.slots, workers)
-        # All at once: a KV call waits for several turns of the event loop, and on a loop
-        # starved by ingest 32 renewals in turn outlasted the fence (3.4 s at 15 ms a turn).
-        await _all(self._renew(slot, held) for slot, held in list(self._held.items()))
         self.owned()
         for slot in sorted(self._held)[share:]:
             # Let go before the delete is sent: a peer may create the key as soon as the
@@ -173,7 +192,8 @@ class Leases:
             held.revision = await self._kv.update(slot_key(slot), value, last=held.revision)
             held.renewed_sent = sent
         except (KeyWrongLastSequenceError, KeyNotFoundError):
-            self._drop(slot, "lost")
+            if self._held.get(slot) is held:  # not released (or claimed again) meanwhile
+                self._drop(slot, "lost")
 
     async def _claim(self, share: int) -> None:
         # Every other slot's key is read at once, then free slots are created, as many at
@@ -236,9 +256,10 @@ class Leases:
 
     async def flush_log(self) -> None:
         """Append the changes noted since the last flush to the log (off the event loop)."""
-        lines, self._pending = self._pending, []
-        if lines and self._log_path is not None:
-            await asyncio.to_thread(_append, self._log_path, lines)
+        async with self._flushing:  # the renewals' and the rounds': lines stay in order
+            lines, self._pending = self._pending, []
+            if lines and self._log_path is not None:
+                await asyncio.to_thread(_append, self._log_path, lines)
 
 
 async def _all(calls: Iterable[Awaitable[T]]) -> list[T]:
