@@ -19,6 +19,7 @@ from nats.js.errors import KeyWrongLastSequenceError
 from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases
 from kybercore.scale.slots import slot_key
+from tests.helpers import wait_for
 from tests.scale.replay import no_overlap
 
 SLOTS = 16
@@ -203,16 +204,16 @@ async def starved_loop() -> AsyncIterator[None]:
         task.cancel()
 
 
-def rounds_of(leases: Leases) -> list[float]:
-    """The monotonic() ends of ``leases``' rounds from now on."""
+def rounds_of(leases: Leases, method: str = "round") -> list[float]:
+    """The monotonic() ends of ``leases``' rounds (or renewals) from now on."""
     ended: list[float] = []
-    real_round = leases.round
+    real = getattr(leases, method)
 
     async def counted() -> None:
-        await real_round()
+        await real()
         ended.append(time.monotonic())
 
-    leases.round = counted  # type: ignore[method-assign]
+    setattr(leases, method, counted)
     return ended
 
 
@@ -329,10 +330,13 @@ async def test_a_slow_count_of_the_workers_does_not_delay_the_renewals(
     before = drops([log])
     assert w1._workers is not None
     count = w1._workers.keys
-    slow = FENCE_AT * TTL * 1.5  # a FAKE slow broker reply: longer than the fence
+    renewed = rounds_of(w1, "renew")
 
     async def slow_count() -> list[str]:
-        await asyncio.sleep(slow)
+        # A FAKE slow broker reply: the count answers only after 4 more renewals, TTL/3
+        # apart, so it outlasts the fence (0.8·TTL).
+        before = len(renewed)
+        await wait_for(lambda: len(renewed) >= before + 4, TAKEOVER_BOUND, "renewals")
         return await count()
 
     w1._workers.keys = slow_count  # type: ignore[method-assign]
