@@ -1,7 +1,7 @@
 """The reads a front makes through the printers' workers, against real processes (a
 nats-server, 2 ingest workers, a front, real virtual printers): the macros, the temperature
-graph, a thumbnail, the webcam list and a snapshot answer as ``kybercore serve`` answers
-them, from what the printer's Moonraker really has."""
+graph, a thumbnail, the webcam list, a snapshot and the live stream answer as ``kybercore
+serve`` answers them, from what the printer's Moonraker and its camera really have."""
 
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ def test_an_image_too_large_for_nats_is_refused_by_name(
         huge.unlink()
 
 
-def test_the_webcams_and_a_snapshot_and_the_stream_refused_for_the_snapshot(
+def test_the_webcams_and_a_snapshot(
     front: httpx.Client, fleet_stacks: list[PrinterStack]
 ) -> None:
     answer = front.get("/fleet-a/webcams")
@@ -174,8 +174,55 @@ def test_the_webcams_and_a_snapshot_and_the_stream_refused_for_the_snapshot(
     assert unknown.status_code == 404
     assert "/api/printers/fleet-a/webcams" in unknown.json()["error"]["message"]
 
-    stream = front.get("/fleet-a/webcams/kybercam/stream")
-    assert stream.status_code == 409, stream.text
-    error = stream.json()["error"]
-    assert error["code"] == "not_on_front"
-    assert "/api/printers/fleet-a/webcams/kybercam/snapshot" in error["message"]
+
+def mjpeg(answer: httpx.Response, pictures: int) -> bytes:
+    """The stream's bytes until ``pictures`` JPEGs have begun."""
+    received = b""
+    for chunk in answer.iter_raw():
+        received += chunk
+        if received.count(JPEG) >= pictures:
+            break
+    return received
+
+
+def test_the_webcams_live_stream_is_relayed_by_the_printers_owner(front: httpx.Client) -> None:
+    with front.stream("GET", "/fleet-a/webcams/kybercam/stream") as answer:
+        assert answer.status_code == 200, answer.read()
+        assert answer.headers["content-type"].startswith("multipart/x-mixed-replace")
+        assert answer.headers["cache-control"] == "no-store"
+        received = mjpeg(answer, 3)
+    # Whole pictures, one after another: the first part's JPEG ends before the second.
+    boundary = answer.headers["content-type"].split("boundary=")[1].encode()
+    first = received.split(b"--" + boundary)[1]
+    picture = first[first.index(JPEG) :].rstrip(b"\r\n")
+    with PIL.Image.open(io.BytesIO(picture)) as image:
+        image.load()  # a cut JPEG raises
+        assert image.format == "JPEG"
+    unknown = front.get("/fleet-a/webcams/nope/stream")
+    assert unknown.status_code == 404, unknown.text
+
+
+def test_a_printers_streams_are_limited_and_one_browser_leaving_frees_one(
+    front: httpx.Client,
+) -> None:
+    """As in one process: four streams of a printer at once, the fifth refused; a browser
+    that leaves frees its stream on the owner, which also closes the camera's."""
+    url = "/fleet-b/webcams/kybercam/stream"
+    opened = [front.send(front.build_request("GET", url), stream=True) for _ in range(4)]
+    try:
+        for answer in opened:
+            assert answer.status_code == 200, answer.read()
+            mjpeg(answer, 1)
+        fifth = front.get(url)
+        assert fifth.status_code == 409, fifth.text
+        assert fifth.json()["error"]["code"] == "too_many_streams"
+        opened.pop().close()
+
+        def another_opens() -> bool:
+            with front.stream("GET", url) as answer:
+                return answer.status_code == 200 and JPEG in mjpeg(answer, 1)
+
+        wait_until(another_opens, 30, "a stream freed by a browser that left")
+    finally:
+        for answer in opened:
+            answer.close()

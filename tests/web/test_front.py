@@ -1,5 +1,6 @@
 """The dashboard against a front on NATS (2 ingest workers) behaves as against ``serve``:
-the same tiles, live, and actions that reach the printers through their workers."""
+the same tiles, live, actions that reach the printers through their workers, and the
+printer page's live webcam."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from kybercore.sim.stack import PrinterStack
+from tests.helpers import wait_until
 from tests.scale.cluster import Cluster, fresh_cluster
 from tests.web.support import expect_ready_tiles, open_fleet, tile
 
@@ -44,3 +46,12 @@ def test_the_overview_on_a_front_is_live_and_acts(
     answer = httpx.post(url, json={"extruder": 0}, timeout=30)
     assert answer.status_code == 200, answer.text
     expect(hotend).not_to_have_class(re.compile(r"\bheating\b"))
+
+    # The printer page's webcam streams live through the front (the owner relays it), as
+    # on serve: no fallback to snapshots.
+    tile(page, "fleet-b").get_by_role("link", name="Printer B").click()
+    webcam = page.locator("#printer-webcam")
+    image = webcam.get_by_role("img", name="Printer B: webcam kybercam")
+    expect(image).to_have_attribute("src", "/api/printers/fleet-b/webcams/kybercam/stream")
+    wait_until(lambda: image.evaluate("i => i.naturalWidth") > 0, what="a first frame")
+    expect(webcam.locator(".webcam-note")).to_have_text("")

@@ -10,9 +10,11 @@ from typing import Annotated
 from fastapi import APIRouter, Path
 from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel, Field
+from starlette.types import Receive, Scope, Send
 
 from kybercore.api.deps import VIEWER, Service
 from kybercore.api.models import ERROR_RESPONSES
+from kybercore.fleet.webcams import CameraStream
 
 router = APIRouter(prefix="/api/printers")
 
@@ -76,5 +78,20 @@ async def snapshot(service: Service, printer_id: str, name: CameraName) -> Respo
 )
 async def stream(service: Service, printer_id: str, name: CameraName) -> StreamingResponse:
     """The webcam's MJPEG stream, relayed until the browser goes away."""
-    kind, body = await service.camera_stream(printer_id, name)
-    return StreamingResponse(body, media_type=kind, headers=_NO_STORE)
+    return _Relay(await service.camera_stream(printer_id, name))
+
+
+class _Relay(StreamingResponse):
+    """A camera's stream to the browser, closed however the response ends: when the
+    browser leaves, and also when it left before the first byte (the body is then never
+    read, so closing it in its own ``finally`` would never happen)."""
+
+    def __init__(self, stream: CameraStream) -> None:
+        super().__init__(stream, media_type=stream.content_type, headers=_NO_STORE)
+        self._stream = stream
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            await self._stream.aclose()

@@ -10,7 +10,7 @@ reports a success that did not happen.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, BinaryIO, Final
 
 import httpx
@@ -44,7 +44,7 @@ from kybercore.fleet.images import Image, media_type_of
 from kybercore.fleet.sessions import FleetPrinter, Interest, Listener, Sessions
 from kybercore.fleet.temperatures import Series
 from kybercore.fleet.web_ui import WebUiFinder
-from kybercore.fleet.webcams import Webcam, WebcamProxy
+from kybercore.fleet.webcams import CameraStream, Webcam, WebcamProxy
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
@@ -387,8 +387,8 @@ class FleetService:
         camera = await self._camera(printer_id, name)
         return Image(await self.webcams.snapshot(camera, printer_id), "image/jpeg")
 
-    async def camera_stream(self, printer_id: str, name: str) -> tuple[str, AsyncIterator[bytes]]:
-        """The webcam's MJPEG stream: its content type and its bytes, relayed as they come."""
+    async def camera_stream(self, printer_id: str, name: str) -> CameraStream:
+        """The webcam's MJPEG stream, relayed as it comes (close it however it ends)."""
         return await self.webcams.stream(await self._camera(printer_id, name), printer_id)
 
     async def _camera(self, printer_id: str, name: str) -> Webcam:

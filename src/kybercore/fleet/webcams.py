@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, Protocol
 from urllib.parse import urlsplit, urlunsplit
 
 import httpx
@@ -174,9 +174,9 @@ class WebcamProxy:
             )
         return image
 
-    async def stream(self, cam: Webcam, printer_id: str) -> tuple[str, AsyncIterator[bytes]]:
-        """The webcam's MJPEG stream: its content type and its bytes, relayed as they come
-        (the camera's connection is closed when the iterator is)."""
+    async def stream(self, cam: Webcam, printer_id: str) -> CameraStream:
+        """The webcam's MJPEG stream, relayed as it comes; it counts against the printer's
+        limit until closed."""
         if self._streams.get(printer_id, 0) >= self._max_streams:
             raise ActionRejected(
                 f"{printer_id}: {self._max_streams} webcam streams are open already; close "
@@ -192,7 +192,7 @@ class WebcamProxy:
                 continue
             kind = answer.headers.get("content-type", "")
             if answer.is_success and kind.startswith("multipart/"):
-                return kind, self._relay(printer_id, answer)
+                return _Relayed(kind, answer, self._streams, printer_id)
             await answer.aclose()
         raise PrinterUnreachable(
             f"webcam '{cam.name}' gave no MJPEG stream "
@@ -201,11 +201,39 @@ class WebcamProxy:
             printer=printer_id,
         )
 
-    async def _relay(self, printer_id: str, answer: httpx.Response) -> AsyncIterator[bytes]:
-        self._streams[printer_id] = self._streams.get(printer_id, 0) + 1
-        try:
-            async for chunk in answer.aiter_raw():
-                yield chunk
-        finally:
-            self._streams[printer_id] -= 1
-            await answer.aclose()
+
+class CameraStream(Protocol):
+    """A live MJPEG stream being relayed: its content type, its bytes as they come, and
+    :meth:`aclose`, which whoever opened it must call however it ends (also when it was
+    never read: a browser may leave before the first byte), and may call twice."""
+
+    content_type: str
+
+    def __aiter__(self) -> AsyncIterator[bytes]: ...
+
+    async def aclose(self) -> None:
+        """Let go of the camera's connection (or of whatever carries the stream)."""
+
+
+class _Relayed:
+    """A camera's stream read straight from the camera (``kybercore serve``, a worker)."""
+
+    def __init__(
+        self, kind: str, answer: httpx.Response, counts: dict[str, int], printer_id: str
+    ) -> None:
+        self.content_type = kind
+        self._answer = answer
+        self._counts = counts
+        self._printer_id = printer_id
+        counts[printer_id] = counts.get(printer_id, 0) + 1
+        self._open = True
+
+    def __aiter__(self) -> AsyncIterator[bytes]:
+        return self._answer.aiter_raw()
+
+    async def aclose(self) -> None:
+        """Close the camera's connection; the printer has one stream fewer open."""
+        if self._open:
+            self._open = False
+            self._counts[self._printer_id] -= 1
+            await self._answer.aclose()

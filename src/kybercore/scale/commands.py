@@ -45,6 +45,7 @@ from kybercore.scale.wire import (
 
 if TYPE_CHECKING:
     from kybercore.scale.jobfiles import JobFileBucket
+    from kybercore.scale.streams import StreamRelay
     from kybercore.scale.uploads import Uploads
 
 log = logging.getLogger(__name__)
@@ -141,23 +142,28 @@ class CommandRunner:
         *,
         uploads: Uploads | None = None,
         jobfiles: JobFileBucket | None = None,
+        streams: StreamRelay | None = None,
     ) -> None:
         """``epoch_of(printer_id)``: the printer's slot epoch while this worker may act for
         it (the lease is fresh), else None. ``uploads``: where uploaded files wait;
-        ``jobfiles``: where the queue's files are shared (without them, the ``upload`` and
-        ``fetch_file`` commands are unknown here)."""
+        ``jobfiles``: where the queue's files are shared; ``streams``: what relays webcam
+        streams (without them, the ``upload``, ``fetch_file`` and ``camera_stream``
+        commands are unknown here)."""
         self._service = service
         self._uploads = uploads
         self._jobfiles = jobfiles
+        self._streams = streams
         self._epoch_of = epoch_of
         self._seen: OrderedDict[str, None] = OrderedDict()
         self._running: set[asyncio.Task[None]] = set()
 
     async def stop(self) -> None:
-        """Cancel the commands still running."""
+        """Cancel the commands still running, and the webcam streams being relayed."""
         for task in list(self._running):
             task.cancel()
         await asyncio.gather(*self._running, return_exceptions=True)
+        if self._streams is not None:
+            await self._streams.stop()
 
     async def on_message(self, msg: Msg) -> None:
         """A command arrived: refuse it, or acknowledge it and run it in the background
@@ -207,6 +213,9 @@ class CommandRunner:
         if op == "fetch_file" and self._jobfiles is not None:
             # Not in OPS either: the file goes into the broker's object store.
             return await self._jobfiles.offer(self._service, printer_id, str(args["path"]))
+        if op == "camera_stream" and self._streams is not None:
+            # Not in OPS either: the stream goes on after the answer, over NATS.
+            return await self._streams.open(self._service, printer_id, args)
         run = OPS.get(op)
         if run is None:
             raise KyberCoreError(f"Unknown command '{op}': this worker is older than its front.")

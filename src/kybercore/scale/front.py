@@ -14,13 +14,11 @@ printers held by workers:
 - the reads that need the printer's Moonraker or its worker's memory are commands too: the
   macros, the temperature graph, a file's thumbnail, the webcam list and a webcam's
   snapshot (images in base64, refused with ``too_large_for_front`` above
-  :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them).
+  :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them);
+- a webcam's live MJPEG stream is relayed by the printer's owner, chunk by chunk, for as
+  long as the browser reads it (:mod:`.streams`).
 - the job queue's printers (:mod:`.queue`) are read from these views (:meth:`FrontFleet.watch`
   tells of each change), and what the queue does on a printer goes to its owner as commands.
-
-What a front does not do yet: a webcam's live MJPEG stream, which answers 409
-``not_on_front`` naming what to use instead. A stream is endless, so it does not fit one
-request and one answer; the snapshots do (the printer page falls back to them by itself).
 """
 
 from __future__ import annotations
@@ -28,7 +26,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO, Final
 
@@ -42,12 +40,12 @@ from kybercore.aio import cancel_and_wait
 from kybercore.core.macros import Macro
 from kybercore.core.validation import Verdict
 from kybercore.core.view import LivePrinter, View, fuse
-from kybercore.errors import UnknownPrinter, not_on_front, shorten
+from kybercore.errors import UnknownPrinter, not_on_front
 from kybercore.fleet.actions import ActionOutcome
 from kybercore.fleet.images import Image
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.temperatures import Series
-from kybercore.fleet.webcams import Webcam
+from kybercore.fleet.webcams import CameraStream, Webcam
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry, read_printers
@@ -56,6 +54,7 @@ from kybercore.scale.commands import send_command
 from kybercore.scale.follow import STALE_SECONDS, FleetCopy
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
+from kybercore.scale.streams import open_stream
 from kybercore.scale.uploads import send_upload
 from kybercore.scale.wire import (
     decode_image,
@@ -407,12 +406,8 @@ class FrontFleet(FleetService):
         """One JPEG from the webcam ``name`` (through the printer's owner)."""
         return decode_image(await self.command(printer_id, "camera_snapshot", name=name))
 
-    async def camera_stream(self, printer_id: str, name: str) -> tuple[str, AsyncIterator[bytes]]:
-        """Not on a front: an endless stream does not fit a command and its one answer."""
+    async def camera_stream(self, printer_id: str, name: str) -> CameraStream:
+        """The webcam's live MJPEG stream, relayed by the printer's owner (:mod:`.streams`)."""
         self.config(printer_id)
-        snapshot = f"GET /api/printers/{printer_id}/webcams/{shorten(name)}/snapshot"
-        raise not_on_front(
-            "A webcam's live MJPEG stream",
-            f"use its snapshots instead ({snapshot}, a JPEG each time; the printer page "
-            "switches to them by itself), or `kybercore serve` for the stream",
-        )
+        epoch = self.copy.slots[slot_of(printer_id, self._slots)].epoch
+        return await open_stream(self._nc, printer_id, name, epoch=epoch)

@@ -46,6 +46,7 @@ from kybercore.scale.jobfiles import JobFileBucket
 from kybercore.scale.leases import Leases
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import slot_of
+from kybercore.scale.streams import StreamRelay
 from kybercore.scale.uploads import Uploads
 from kybercore.scale.wire import (
     command_subject,
@@ -98,8 +99,9 @@ class Worker:
             on_change=self._lease_changed,
         )  # fmt: skip
         self.commands = CommandRunner(
-            self.service, self._epoch_of, uploads=Uploads(nc), jobfiles=JobFileBucket(nc)
-        )
+            self.service, self._epoch_of, uploads=Uploads(nc), jobfiles=JobFileBucket(nc),
+            streams=StreamRelay(nc, self._epoch_of),
+        )  # fmt: skip
         self.ledger = None
         if database is not None:
             self.ledger = LedgerService(
