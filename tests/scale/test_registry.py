@@ -12,8 +12,17 @@ from pydantic import SecretStr
 from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.registry import STORED, KvRegistry
+from kybercore.scale.registry import STORED, KvRegistry, fleet_order
 from tests.helpers import wait_for
+
+
+def test_the_fleet_is_in_natural_order_whatever_order_the_bucket_gives() -> None:
+    ids = ["printer-10", "farm-b-2", "printer-2", "printer-1", "farm-b-10", "x", "printer-02a"]
+    printers = [PrinterConfig(id=i, name=i, moonraker_url="http://127.0.0.1:1") for i in ids]
+    expected = ["farm-b-2", "farm-b-10", "printer-1", "printer-2", "printer-02a", "printer-10", "x"]
+    assert [p.id for p in fleet_order(printers)] == expected
+    # Again, from the keys it remembers: the same order.
+    assert [p.id for p in fleet_order(printers[::-1])] == expected
 
 
 async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) -> None:

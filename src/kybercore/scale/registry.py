@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import re
 from collections.abc import Callable
@@ -61,9 +62,12 @@ def fleet_order(printers: list[PrinterConfig]) -> list[PrinterConfig]:
     return sorted(printers, key=lambda p: _natural(p.id))
 
 
-def _natural(text: str) -> list[tuple[int, str]]:
+# Remembered: every batch of registry changes sorts the whole fleet again, and at 5,000
+# printers making the keys was most of a worker's time while an import trickled in.
+@functools.lru_cache(maxsize=1 << 16)
+def _natural(text: str) -> tuple[tuple[int, str], ...]:
     # (0, digits as a number) sorts numbers among themselves; (1, text) after them.
-    return [(0, f"{int(t):020d}") if t.isdigit() else (1, t) for t in re.split(r"(\d+)", text)]
+    return tuple((0, f"{int(t):020d}") if t.isdigit() else (1, t) for t in re.split(r"(\d+)", text))
 
 
 def _conflict(printer_id: str) -> ActionRejected:
