@@ -11,6 +11,7 @@ import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -28,6 +29,18 @@ async def wait_for(
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
         await asyncio.sleep(0.02)  # poll: wait for the predicate, deadline above
     return time.monotonic() - start
+
+
+async def subscribed(nc: Any) -> None:
+    """Return once the server holds every subscription ``nc`` made so far, so that another
+    connection's message finds them (else: "no responders").
+
+    One ``flush()`` is not enough: nats-py writes its PING straight to the socket, ahead of
+    the commands its flusher has not written yet (a SUB just made), so the PONG can come
+    back before the server has read the SUB. By the time it does, the flusher has written
+    them, and a second round trip is behind them."""
+    await nc.flush()
+    await nc.flush()
 
 
 def wait_until(

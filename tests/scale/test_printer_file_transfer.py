@@ -22,6 +22,7 @@ from kybercore.scale.front import FrontFleet
 from kybercore.scale.jobfiles import BUCKET, JobFileBucket
 from kybercore.scale.queue import FrontPrinters
 from kybercore.scale.wire import command_subject
+from tests.helpers import subscribed
 from tests.scale.test_upload_transfer import PRINTER, gcode
 
 
@@ -62,8 +63,8 @@ async def pair(nats_server: LocalServer) -> AsyncIterator[tuple[FrontPrinters, S
     )
     await worker.subscribe(command_subject(PRINTER), cb=runner.on_message)
     # The front asks on a connection of its own: the server must hold the subscription
-    # first (a round trip), or a busy machine answers "no responders".
-    await worker.flush()
+    # first, or it answers "no responders".
+    await subscribed(worker)
     yield FrontPrinters(cast(FrontFleet, Front(front))), service
     await runner.stop()
     await front.close()

@@ -18,7 +18,7 @@ from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.commands import CommandRunner
 from kybercore.scale.streams import SEQ_HEADER, RelayedStream, StreamRelay, open_stream
 from kybercore.scale.wire import command_subject
-from tests.helpers import wait_for
+from tests.helpers import subscribed, wait_for
 
 PRINTER = "p1"
 BOUND = 30.0
@@ -84,7 +84,7 @@ async def start_owner(nats_server: LocalServer, **relay: Any) -> AsyncIterator[O
         owner.service, lambda pid: owner.epoch, streams=owner.relay  # type: ignore[arg-type]
     )
     await owner_nc.subscribe(command_subject(PRINTER), cb=runner.on_message)
-    await owner_nc.flush()
+    await subscribed(owner_nc)  # before the front, on its own connection, asks
     yield owner
     await runner.stop()
     await owner_nc.close()
@@ -228,3 +228,18 @@ async def test_a_stream_goes_only_to_an_inbox(owner: Owner) -> None:
     with pytest.raises(InvalidInput, match="reply inbox"):
         await owner.relay.open(owner.service, PRINTER, {"name": "cam", "to": "kc.cmd.p2"})  # type: ignore[arg-type]
     assert owner.service.opened == []
+
+
+async def test_the_fronts_broker_connection_closing_ends_the_stream(
+    nc: Client, owner: Owner
+) -> None:
+    stream, camera, chunks = await flowing(nc, owner)
+    await nc.close()
+    assert await read(chunks, 1) == b""
+    assert stream.ended.startswith("the broker connection broke")
+
+    def camera_sends_and_relay_stopped() -> bool:
+        camera.chunks.put_nowait(b"--frame\r\n")  # the owner hears "no responders"
+        return camera.closed and owner.relay.relaying == 0
+
+    await wait_for(camera_sends_and_relay_stopped, BOUND, "the relay stops")

@@ -22,6 +22,7 @@ from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.commands import CommandRunner, send_command
 from kybercore.scale.uploads import BUCKET, UploadOrder, Uploads, send_upload
 from kybercore.scale.wire import command_subject, decode_outcome
+from tests.helpers import subscribed
 from tests.scale.objects import stored, stored_bytes
 
 PRINTER = "p1"
@@ -66,8 +67,8 @@ async def pair(nats_server: LocalServer) -> AsyncIterator[Pair]:
     runner = CommandRunner(cast(FleetService, service), lambda _p: 1, uploads=Uploads(worker))
     await worker.subscribe(command_subject(PRINTER), cb=runner.on_message)
     # The front asks on a connection of its own: the server must hold the subscription
-    # first (a round trip), or a busy machine answers "no responders".
-    await worker.flush()
+    # first, or it answers "no responders".
+    await subscribed(worker)
     yield Pair(front, worker, service)
     await runner.stop()
     await front.close()

@@ -117,6 +117,9 @@ class RelayedStream:
             except TimeoutError:
                 self._end("the printer's worker went silent")
                 return
+            except nats.errors.Error as exc:  # the front's connection closed
+                self._end(f"the broker connection broke ({exc})")
+                return
             headers = msg.headers or {}
             if END_HEADER in headers:
                 self._end(headers[END_HEADER])
@@ -182,7 +185,12 @@ class StreamRelay:
     async def _relay(self, printer_id: str, to: str, stream: CameraStream) -> None:
         flow = _Flow()
         status = self._nc.new_inbox()
-        sub = await self._nc.subscribe(status, cb=flow.heard)
+        try:
+            sub = await self._nc.subscribe(status, cb=flow.heard)
+        except nats.errors.Error as exc:
+            log.info("%s: a webcam stream could not be relayed: %r", printer_id, exc)
+            await stream.aclose()
+            return
         why = "the printer's worker stopped"
         # The front may leave while the camera is between frames: "no responders" ends the
         # relay then, not the camera's next chunk.
