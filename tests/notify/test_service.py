@@ -121,7 +121,10 @@ async def test_a_plate_left_waiting_is_told_once_with_its_job(
     tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine, receiver: Receiver
 ) -> None:
     printers = unreachable("p1")
-    async with running_notify(printers, tmp_path, http, engine) as notify:
+    # The job is queued for a moment before it is reserved, on a printer that cannot take
+    # it: told "blocked" at once (job_blocked_s=0), that would be a second message.
+    settings = replace(FAST, job_blocked_s=3600.0)
+    async with running_notify(printers, tmp_path, http, engine, settings) as notify:
         await add_webhook(notify, receiver)
         store = notify.queue.store
         job = await store.create_job(new_job(name="bracket.gcode"), "alice")
@@ -213,7 +216,8 @@ async def test_the_listener_skips_updates_nothing_reads_and_never_raises(
 async def test_stopping_records_the_events_still_held_for_folding(
     tmp_path: Path, http: httpx.AsyncClient, engine: AsyncEngine
 ) -> None:
-    held = replace(FAST, fold_window_s=3600.0)
+    # Not told "blocked" in the moment the job waits for its reservation (as above).
+    held = replace(FAST, fold_window_s=3600.0, job_blocked_s=3600.0)
     async with running_notify(unreachable("p1"), tmp_path, http, engine, held) as notify:
         channel = await add_webhook(notify, Receiver())  # down: what is recorded stays
         store = notify.queue.store
