@@ -14,10 +14,11 @@ from typing import Protocol
 
 import pytest
 from nats.aio.client import Client
-from nats.js.errors import KeyWrongLastSequenceError
+from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
 
+from kybercore.scale import leases as leases_module
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases
+from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases, _wrong_last
 from kybercore.scale.slots import slot_key
 from tests.helpers import wait_for
 from tests.scale.replay import no_overlap
@@ -42,7 +43,9 @@ async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Sta
 
     async def start(name: str, slots: int = SLOTS) -> Leases:
         nc = await connect(nats_server.url, name)
-        leases = Leases(nc, name, slots=slots, ttl=TTL, log_path=tmp_path / f"{name}.log")
+        leases = Leases(
+            nc, name, url=nats_server.url, slots=slots, ttl=TTL, log_path=tmp_path / f"{name}.log"
+        )
         await leases.start()
         started.append((leases, nc))
         return leases
@@ -209,8 +212,8 @@ def rounds_of(leases: Leases, method: str = "round") -> list[float]:
     ended: list[float] = []
     real = getattr(leases, method)
 
-    async def counted() -> None:
-        await real()
+    async def counted(*args: object) -> None:
+        await real(*args)
         ended.append(time.monotonic())
 
     setattr(leases, method, counted)
@@ -350,3 +353,58 @@ async def test_a_slow_count_of_the_workers_does_not_delay_the_renewals(
     assert len(w1.owned()) == SLOTS // 2
     await w1.flush_log()
     assert drops([log]) == before
+
+
+def busy(seconds: float) -> None:
+    """Hold this thread (the event loop's) and the GIL as ingest at full tilt does: nothing
+    on the loop runs meanwhile; other threads get the GIL only at its switch interval."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+async def test_a_loop_blocked_past_the_ttl_keeps_its_leases(
+    workers: Start, tmp_path: Path
+) -> None:
+    # Renewed on the loop, every lease expired meanwhile: both workers fenced and claimed
+    # everything again when it came back. Renewed on their own threads, none is lost.
+    w1, w2 = await workers("w1"), await workers("w2")
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
+    held = (set(w1.owned()), set(w2.owned()))
+    logs = sorted(tmp_path.glob("w*.log"))
+    for w in (w1, w2):
+        await w.flush_log()
+    before = drops(logs)
+    busy(2 * TTL)
+    assert (set(w1.owned()), set(w2.owned())) == held  # renewed in time: not fenced
+    ended = rounds_of(w1)
+    await until("two more rounds", lambda: len(ended) >= 2)
+    for w in (w1, w2):
+        await w.flush_log()
+    assert drops(logs) == before
+    assert (set(w1.owned()), set(w2.owned())) == held
+
+
+async def test_a_hung_loop_lets_its_leases_expire(
+    workers: Start, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A loop that does not turn for LOOP_GRACE TTLs is hung, not late: its renewals stop,
+    # so that its printers are not held for ever (one TTL here, five when deployed).
+    monkeypatch.setattr(leases_module, "LOOP_GRACE", 1.0)
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    busy(4 * TTL)  # renewals stop after 1 TTL; the keys expire 1 TTL after the last one
+    assert not w1.owned()  # fenced: its last renewal is too old
+    await w1.flush_log()
+    dropped = drops([tmp_path / "w1.log"])
+    assert len(dropped) == SLOTS, dropped
+    assert all('"fence"' in line for line in dropped)
+
+
+def test_a_release_on_a_revision_moved_on_is_someone_elses_key_not_a_failed_round() -> None:
+    # nats-py raises it from delete as a bare BadRequestError (from update, as
+    # KeyWrongLastSequenceError): it failed every round that released a slot.
+    moved = BadRequestError(code=400, err_code=10071, description="wrong last sequence: 41")
+    assert _wrong_last(moved)
+    assert _wrong_last(KeyNotFoundError())
+    assert not _wrong_last(BadRequestError(code=400, err_code=10058, description="other"))

@@ -102,7 +102,8 @@ async def _ingest(
     nc = await connect(url, f"kybercore-ingest-{name}")
     async with new_http_client() as http:
         worker = Worker(
-            nc, name, http, slots=slots, ttl=ttl, folder=folder, grace=grace, database=engine
+            nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, grace=grace,
+            database=engine,
         )
         await worker.start()
         logging.getLogger(__name__).info("worker %s up on %s", name, url)

@@ -2,9 +2,10 @@
 
 Every TTL/3 a worker renews each slot it owns, all at once, with a compare-and-set on the
 key's revision (a failure means someone else holds it now: the slot is dropped at once).
-The renewals run on their own, apart from the rounds that share the slots out: on a loop
-starved by ingest, counting the workers (several round trips) or claiming delayed the
-renewals past the fence, and every lease was dropped and claimed again.
+The renewals run on a thread of their own, with a connection of their own
+(:mod:`.renewer`), apart from the worker's event loop and the rounds that share the slots
+out: on a loop starved by ingest, the renewals ran late past the fence, and every lease was
+dropped and claimed again.
 
 Every TTL/3, too, a round:
 
@@ -36,10 +37,16 @@ from pathlib import Path
 from typing import Final, TypeVar, cast
 
 from nats.aio.client import Client
-from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
+from nats.js.errors import (
+    BadRequestError,
+    KeyNotFoundError,
+    KeyWrongLastSequenceError,
+    NoKeysError,
+)
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
+from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import fair_share, slot_key
 
 log = logging.getLogger(__name__)
@@ -48,6 +55,10 @@ SLOTS_BUCKET: Final = "kc_slots"
 WORKERS_BUCKET: Final = "kc_workers"
 FENCE_AT: Final = 0.8
 """Of the TTL: a slot not renewed for this long is no longer acted on."""
+RENEWAL_POLL: Final = 0.005
+"""Seconds between looks at a renewal on its way, before a release."""
+WRONG_LAST: Final = 10071
+"""JetStream's error code for a compare-and-set on a revision that is not the key's."""
 T = TypeVar("T")
 
 
@@ -61,6 +72,9 @@ class Held:
     """The key's revision after the last renewal (the next compare-and-set's)."""
     renewed_sent: float
     """monotonic() when the last successful renewal was sent."""
+    renewing: bool = False
+    """A renewal of it is on its way (the renewals' thread): a release waits for its
+    revision."""
 
 
 Change = Callable[[int, int | None, str], None]
@@ -73,10 +87,12 @@ class Leases:
     """One worker's side of slot ownership; see the module docstring."""
 
     def __init__(
-        self, nc: Client, worker: str, *, slots: int, ttl: float,
+        self, nc: Client, worker: str, *, url: str, slots: int, ttl: float,
         log_path: Path | None = None, on_change: Change | None = None,
     ) -> None:  # fmt: skip
+        """``url``: the broker's, for the renewals' own connection."""
         self._nc = nc
+        self._url = url
         self.worker = worker
         self.slots = slots
         self.ttl = ttl
@@ -88,9 +104,14 @@ class Leases:
         self._task: asyncio.Task[None] | None = None
         self._pending: list[str] = []
         self._flushing = asyncio.Lock()
+        self._home: asyncio.AbstractEventLoop | None = None
+        """The worker's loop: what the renewals' thread learns is handed back to it."""
+        self._turned = time.monotonic()
+        """monotonic() when the worker's loop last turned (see :mod:`.renewer`)."""
 
     async def start(self) -> None:
         """Open (or create) the buckets and start the renewal loop."""
+        self._home = asyncio.get_running_loop()
         js = self._nc.jetstream()
         self._kv = await js.create_key_value(bucket=SLOTS_BUCKET, ttl=self.ttl, history=1)
         self._workers = await js.create_key_value(bucket=WORKERS_BUCKET, ttl=self.ttl, history=1)
@@ -136,31 +157,44 @@ class Leases:
             assert self._workers is not None
             await self._workers.put(self.worker, b"1")
             await asyncio.sleep(self.ttl / 3)
-        # A child of this task: cancelling it (a stop, or a test standing in for a paused
-        # process) stops the renewals too. The methods are looked up at each call (a test
-        # counts the rounds by wrapping them).
-        renewing = asyncio.create_task(self._every_third(lambda: self.renew(), "renewal"))
+        # Stopped with this task: cancelling it (a stop, or a test standing in for a paused
+        # process) stops the renewals too. ``round`` and ``renew`` are looked up at each call
+        # (a test counts them by wrapping them).
+        renewer = Renewer(
+            self._url, f"{self.worker}-leases", SLOTS_BUCKET, self.ttl / 3,
+            lambda kv: self.renew(kv), self._loop_alive,
+        )  # fmt: skip
+        ticking = asyncio.create_task(self._tick())
         try:
-            await self._every_third(lambda: self.round(), "round")
+            await renewer.start()
+            await self._rounds()
         finally:
-            await cancel_and_wait(renewing)
+            await cancel_and_wait(ticking)
+            await renewer.stop()
 
-    async def _every_third(self, work: Callable[[], Awaitable[None]], what: str) -> None:
+    async def _tick(self) -> None:
+        while True:
+            self._turned = time.monotonic()
+            await asyncio.sleep(self.ttl / 10)
+
+    def _loop_alive(self) -> bool:
+        return time.monotonic() - self._turned < LOOP_GRACE * self.ttl
+
+    async def _rounds(self) -> None:
         while True:
             started = time.monotonic()
             try:
-                await work()
+                await self.round()
             except Exception as exc:  # the broker away: fencing covers it; try again
-                log.warning("%s: lease %s failed: %s", self.worker, what, exc)
+                log.warning("%s: lease round failed: %s", self.worker, exc)
             self.owned()  # fence what is too old now
             await self.flush_log()
             await asyncio.sleep(max(0.0, self.ttl / 3 - (time.monotonic() - started)))
 
-    async def renew(self) -> None:
-        """Renew every slot held, all at once: a KV call waits for several turns of the
-        event loop, and on a loop starved by ingest 32 renewals in turn outlasted the fence
-        (3.4 s at 15 ms a turn)."""
-        await _all(self._renew(slot, held) for slot, held in list(self._held.items()))
+    async def renew(self, kv: KeyValue) -> None:
+        """Renew every slot held, all at once, through ``kv`` (the renewals' thread's own):
+        32 renewals in turn outlast the fence on a slow connection."""
+        await _all(self._renew(kv, slot, held) for slot, held in list(self._held.items()))
 
     async def round(self) -> None:
         """One heartbeat, release and claim pass."""
@@ -180,20 +214,45 @@ class Leases:
             if held is None:  # fenced (the worker asked for its epoch) during a delete
                 continue
             self._drop(slot, "release")
-            with contextlib.suppress(KeyWrongLastSequenceError, KeyNotFoundError):
-                await self._kv.delete(slot_key(slot), last=held.revision)
+            await self._release(slot, held)
         await self._claim(share)
 
-    async def _renew(self, slot: int, held: Held) -> None:
+    async def _release(self, slot: int, held: Held) -> None:
         assert self._kv is not None
-        sent = time.monotonic()
+        # A renewal sent just before the drop would make this delete's revision stale, and
+        # the key would then stay, unrenewed, for a TTL with nobody acting for its printers.
+        # It takes milliseconds; its thread sets the revision first, then the flag (a plain
+        # flag: an asyncio.Event cannot be set from another thread at once).
+        while held.renewing:  # noqa: ASYNC110
+            await asyncio.sleep(RENEWAL_POLL)
         try:
+            await self._kv.delete(slot_key(slot), last=held.revision)
+        except (KeyNotFoundError, BadRequestError) as exc:
+            if not _wrong_last(exc):
+                raise
+
+    async def _renew(self, kv: KeyValue, slot: int, held: Held) -> None:
+        # On the renewals' thread. The flag goes up before the check, so a release on the
+        # worker's loop (drop, then wait for the flag) never deletes with a stale revision.
+        held.renewing = True
+        try:
+            if self._held.get(slot) is not held:
+                return  # released or dropped meanwhile: its key is not renewed any more
+            sent = time.monotonic()
             value = self._value(held.epoch)
-            held.revision = await self._kv.update(slot_key(slot), value, last=held.revision)
+            held.revision = await kv.update(slot_key(slot), value, last=held.revision)
             held.renewed_sent = sent
         except (KeyWrongLastSequenceError, KeyNotFoundError):
-            if self._held.get(slot) is held:  # not released (or claimed again) meanwhile
-                self._drop(slot, "lost")
+            assert self._home is not None
+            self._home.call_soon_threadsafe(self._lost, slot, held)
+        finally:
+            held.renewing = False
+
+    def _lost(self, slot: int, held: Held) -> None:
+        # epoch() first: a slot whose renewals stopped (a paused process) is fenced as of
+        # 0.8·TTL after its last one, not "lost" only now that the failure is heard.
+        if self._held.get(slot) is held and self.epoch(slot) is not None:
+            self._drop(slot, "lost")
 
     async def _claim(self, share: int) -> None:
         # Every other slot's key is read at once, then free slots are created, as many at
@@ -270,6 +329,12 @@ async def _all(calls: Iterable[Awaitable[T]]) -> list[T]:
         if isinstance(result, BaseException):
             raise result
     return cast(list[T], results)
+
+
+def _wrong_last(exc: Exception) -> bool:
+    """The key is gone, or holds another revision (someone else's lease now): nats-py
+    raises the latter from ``delete`` as a bare BadRequestError."""
+    return isinstance(exc, KeyNotFoundError) or getattr(exc, "err_code", None) == WRONG_LAST
 
 
 def _append(path: Path, lines: list[str]) -> None:

@@ -74,6 +74,7 @@ class Worker:
         worker_id: str,
         http: httpx.AsyncClient,
         *,
+        url: str,
         slots: int,
         ttl: float,
         folder: Path,
@@ -81,7 +82,8 @@ class Worker:
         connect: Connect = picows.ws_connect,
         database: AsyncEngine | None = None,
     ) -> None:
-        """``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
+        """``url``: the broker's (``nc``'s), for the lease renewals' own connection.
+        ``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
         (the one the fronts read), the worker keeps the ledger of the printers it acts
         for: their job history and state timeline."""
         self._nc = nc
@@ -95,7 +97,7 @@ class Worker:
             unused, http, connect=connect, on_publish=self._published, on_console=self._console
         )
         self.leases = Leases(
-            nc, worker_id, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
+            nc, worker_id, url=url, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
             on_change=self._lease_changed,
         )  # fmt: skip
         self.commands = CommandRunner(
