@@ -138,9 +138,11 @@ class Cluster:
         self.workers: dict[str, WorkerProcess] = {}
         self._worker_args = worker_args
 
-    def worker(self, name: str) -> WorkerProcess:
-        """Start the worker ``name``."""
-        self.workers[name] = WorkerProcess(name, self.broker.url, self.folder, *self._worker_args)
+    def worker(self, name: str, *extra_args: str) -> WorkerProcess:
+        """Start the worker ``name`` (``extra_args``: ``--site``...)."""
+        self.workers[name] = WorkerProcess(
+            name, self.broker.url, self.folder, *self._worker_args, *extra_args
+        )
         return self.workers[name]
 
     def views(self) -> list[dict[str, Any]]:

@@ -10,16 +10,17 @@ from pathlib import Path
 def no_overlap(logs: list[Path], died: dict[str, float] | None = None) -> None:
     """Replay own/drop logs: per slot, no two workers' intervals overlap. A worker killed
     (``died``: name → wall time) writes no drops: what it held ends when it died."""
-    intervals: dict[int, list[tuple[float, float, str]]] = {}
+    intervals: dict[str, list[tuple[float, float, str]]] = {}
     for path in logs:
-        opened: dict[int, tuple[float, str]] = {}
+        opened: dict[str, tuple[float, str]] = {}
         for line in path.read_text().splitlines() if path.exists() else []:
             event = json.loads(line)
+            key = event["key"]  # a slot of a site
             if event["ev"] == "own":
-                opened[event["slot"]] = (event["t"], event["worker"])
+                opened[key] = (event["t"], event["worker"])
             else:
-                start, worker = opened.pop(event["slot"])
-                intervals.setdefault(event["slot"], []).append((start, event["t"], worker))
+                start, worker = opened.pop(key)
+                intervals.setdefault(key, []).append((start, event["t"], worker))
         for slot, (start, worker) in opened.items():
             end = (died or {}).get(worker, float("inf"))
             intervals.setdefault(slot, []).append((start, end, worker))

@@ -9,6 +9,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -145,9 +146,11 @@ def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) ->
     assert httpx.get(f"{url}/api/printers/nope", timeout=10).status_code == 404
     files = httpx.get(f"{url}/api/printers/fleet-a/files", timeout=30)
     assert files.status_code == 200, files.text
-    history = httpx.get(f"{url}/api/printers/fleet-a/console", params={"count": 3}, timeout=30)
+    # The M115 above and its answer are the printer's latest console entries.
+    history = httpx.get(f"{url}/api/printers/fleet-b/console", params={"count": 2}, timeout=30)
     assert history.status_code == 200
-    assert len(history.json()) == 3
+    assert [entry["type"] for entry in history.json()] == ["command", "response"]
+    assert history.json()[0]["message"] == "M115"
     # Edits land in the registry bucket and the workers follow them.
     renamed = httpx.patch(f"{url}/api/printers/fleet-b", json={"name": "Renamed B"}, timeout=30)
     assert renamed.status_code == 200, renamed.text
@@ -167,3 +170,47 @@ def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) ->
 def _name(cluster: Cluster, printer_id: str) -> str:
     view: Callable[[], list[dict[str, str]]] = cluster.views
     return next(v["name"] for v in view() if v["id"] == printer_id)
+
+
+def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
+    cluster: Cluster, fleet_stacks: list[PrinterStack]
+) -> None:
+    wait_until(lambda: cluster.all_fresh(3), 60, "every printer fresh")
+    url = cluster.front.url
+    moved = httpx.patch(f"{url}/api/printers/fleet-c", json={"site": "lab-b"}, timeout=30)
+    assert moved.status_code == 200, moved.text
+    # No worker of lab-b yet: the default site's owner lets it go, and the front says
+    # which worker to start.
+    wait_until(
+        lambda: "--site lab-b" in _view(cluster, "fleet-c")["connection_error"],
+        SETTLE,
+        "fleet-c waiting for a lab-b worker",
+    )
+    assert _view(cluster, "fleet-c")["connection"] == "connecting"
+    stack_c = fleet_stacks[2]
+    wait_until(lambda: _sockets(stack_c) == 0, SETTLE, "fleet-c's session closed")
+    gcode = {"script": "M115"}
+    no_owner = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
+    assert no_owner.status_code == 503, no_owner.text
+    # A lab-b worker holds every lab-b slot, and fleet-c through it; the default site's
+    # two still split theirs.
+    b1 = cluster.worker("b1", "--site", "lab-b")
+    wait_until(lambda: cluster.all_fresh(3), 60, "fleet-c fresh through b1")
+    assert _view(cluster, "fleet-c")["site"] == "lab-b"
+    assert len(b1.owned()) == SLOTS
+    assert len(cluster.workers["w1"].owned()) == len(cluster.workers["w2"].owned()) == SLOTS // 2
+    assert _sockets(stack_c) == 1  # connected once, from its site
+    answer = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
+    assert answer.status_code == 200, answer.text
+    assert any("FIRMWARE_NAME" in line for line in answer.json()["response"])
+
+
+def _view(cluster: Cluster, printer_id: str) -> dict[str, Any]:
+    return next(v for v in cluster.views() if v["id"] == printer_id)
+
+
+def _sockets(stack: PrinterStack) -> int:
+    """The WebSocket connections Moonraker holds (KyberCore's session is one)."""
+    stats = httpx.get(f"{stack.url}/machine/proc_stats", timeout=10).json()["result"]
+    count: int = stats["websocket_connections"]
+    return count

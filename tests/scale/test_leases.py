@@ -34,18 +34,19 @@ KV call waits for about 7 turns, a renewal round of 32 slots one after another 3
 
 
 class Start(Protocol):
-    def __call__(self, name: str, slots: int = SLOTS) -> Awaitable[Leases]: ...
+    def __call__(self, name: str, slots: int = SLOTS, site: str = "") -> Awaitable[Leases]: ...
 
 
 @pytest.fixture
 async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Start]:
     started: list[tuple[Leases, Client]] = []
 
-    async def start(name: str, slots: int = SLOTS) -> Leases:
+    async def start(name: str, slots: int = SLOTS, site: str = "") -> Leases:
         nc = await connect(nats_server.url, name)
         leases = Leases(
-            nc, name, url=nats_server.url, slots=slots, ttl=TTL, log_path=tmp_path / f"{name}.log"
-        )
+            nc, name, url=nats_server.url, slots=slots, ttl=TTL, site=site,
+            log_path=tmp_path / f"{name}.log",
+        )  # fmt: skip
         await leases.start()
         started.append((leases, nc))
         return leases
@@ -103,6 +104,35 @@ async def test_workers_started_together_take_their_shares_at_once(
     logs = [line for path in tmp_path.glob("w*.log") for line in path.read_text().splitlines()]
     assert len(logs) == SLOTS
     assert all('"own"' in line for line in logs)
+
+
+async def test_each_site_shares_its_own_slots_among_its_own_workers(
+    workers: Start, nats_server: LocalServer, tmp_path: Path
+) -> None:
+    # One worker of the default site, two of site "lab-b": the former holds every default
+    # slot (not half: the other site's workers do not count toward its share), the latter
+    # split lab-b's.
+    home = await workers("home")
+    b1, b2 = await workers("b1", site="lab-b"), await workers("b2", site="lab-b")
+    await until(
+        "16 and 8/8",
+        lambda: len(home.owned()) == SLOTS and len(b1.owned()) == len(b2.owned()) == SLOTS // 2,
+    )
+    assert set(b1.owned()) | set(b2.owned()) == set(range(SLOTS))
+    nc = await connect(nats_server.url, "reader")
+    try:
+        kv = await nc.jetstream().key_value(SLOTS_BUCKET)
+        keys = set(await kv.keys())
+    finally:
+        await nc.close()
+    assert keys == {slot_key(n) for n in range(SLOTS)} | {f"lab-b.s{n}" for n in range(SLOTS)}
+    # A lab-b worker dying is taken over by lab-b's other one, never by the default site's.
+    await b1.stop(release=False)
+    await until("b2 owns every lab-b slot", lambda: len(b2.owned()) == SLOTS)
+    assert len(home.owned()) == SLOTS
+    for w in (home, b2):
+        await w.flush_log()
+    no_overlap(sorted(tmp_path.glob("*.log")))
 
 
 async def test_a_dead_workers_slots_are_taken_over(workers: Start, tmp_path: Path) -> None:

@@ -19,8 +19,9 @@ from kybercore.jobs.tracker import from_history, seen
 from kybercore.registry.models import PrinterConfig
 from kybercore.scale.front import FrontFleet
 from kybercore.scale.queue import FrontPrinters, changes_of, heaters_of, shown_of_view
-from kybercore.scale.slots import slot_of
+from kybercore.scale.slots import SlotRef, slot_of
 
+NO_WORKER = "No KyberCore worker has reported this printer yet: is `kybercore ingest` running?"
 SLOTS = 4
 PRINTING: dict[str, Any] = {
     "webhooks": {"state": "ready", "state_message": "Printer is ready"},
@@ -157,9 +158,11 @@ async def fleet(tmp_path: Path) -> AsyncIterator[FrontFleet]:
         yield front
 
 
-def snapshot(fleet: FrontFleet, printer_id: str, live: LivePrinter, now: float = 0.0) -> int:
+def snapshot(
+    fleet: FrontFleet, printer_id: str, live: LivePrinter, now: float = 0.0
+) -> SlotRef:
     """The view of ``live`` from the printer's owner, as a snapshot of its slot."""
-    slot = slot_of(printer_id, SLOTS)
+    slot = SlotRef("", slot_of(printer_id, SLOTS))
     view = fuse(config(printer_id), live)
     fleet.copy.snapshot(slot, {"epoch": 1, "seq": 1, "views": {printer_id: view}}, now)
     fleet.copy.check(now)  # fresh
@@ -248,10 +251,26 @@ async def test_an_unreported_printers_view_is_made_once_per_configuration(
 ) -> None:
     # The queue and the notifications read every printer each round: at 5,000 printers
     # coming online, fusing each unreported one at every read took a third of a core.
+    unheard = LivePrinter(connection_error=NO_WORKER)
     first = fleet.current_view("p2")
-    assert first == fuse(config("p2"), LivePrinter())
+    assert first == fuse(config("p2"), unheard)
     assert fleet.current_view("p2") is first
     renamed = config("p2").model_copy(update={"name": "Renamed"})
     fleet._on_printers([config("p1"), renamed])
-    assert fleet.current_view("p2") == fuse(renamed, LivePrinter())
+    assert fleet.current_view("p2") == fuse(renamed, unheard)
     assert fleet.current_view("p2")["name"] == "Renamed"
+
+
+async def test_an_unreported_printer_of_a_site_says_which_workers_to_start(
+    fleet: FrontFleet,
+) -> None:
+    far = config("p3").model_copy(update={"site": "lab-b"})
+    fleet._on_printers([config("p1"), far])
+    view = fleet.current_view("p3")
+    assert view["connection"] == "connecting"
+    assert "`kybercore ingest --site lab-b`" in view["connection_error"]
+    # Its slot is its site's: the default site's same slot being heard does not count.
+    assert slot_of("p3", SLOTS) == slot_of("p1", SLOTS)
+    snapshot(fleet, "p1", online())
+    assert fleet.reported("p1")
+    assert not fleet.reported("p3")

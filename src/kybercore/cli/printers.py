@@ -58,6 +58,13 @@ PowerGroupOpt = Annotated[
         help="The circuit it shares with others (the queue's heating budget); default: location.",
     ),
 ]
+SiteOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--site",
+        help="Whose workers connect to it on NATS (kybercore ingest --site); default: none.",
+    ),
+]
 NotesOpt = Annotated[str | None, typer.Option("--notes", help="Free text for operators.")]
 TagOpt = Annotated[
     list[str] | None,
@@ -126,6 +133,7 @@ def add_printer(
     model: ModelOpt = None,
     location: LocationOpt = None,
     power_group: PowerGroupOpt = None,
+    site: SiteOpt = None,
     notes: NotesOpt = None,
     tag: TagOpt = None,
     api_key: ApiKeyOpt = None,
@@ -144,6 +152,7 @@ def add_printer(
         "model": model,
         "location": location,
         "power_group": power_group,
+        "site": site,
         "notes": notes,
         "tags": tag,
         "api_key": api_key,
@@ -167,6 +176,7 @@ def edit_printer(
     model: ModelOpt = None,
     location: LocationOpt = None,
     power_group: PowerGroupOpt = None,
+    site: SiteOpt = None,
     notes: NotesOpt = None,
     tag: TagOpt = None,
     api_key: ApiKeyOpt = None,
@@ -189,6 +199,7 @@ def edit_printer(
         "model": model,
         "location": location,
         "power_group": power_group,
+        "site": site,
         "notes": notes,
         "tags": tag,
         "api_key": api_key,

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import re
 import shutil
 import signal
 import socket
@@ -25,7 +26,7 @@ import typer
 from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, PrintersFile
 from kybercore.cli.output import console, fail
 from kybercore.errors import KyberCoreError
-from kybercore.registry.models import PrinterConfig
+from kybercore.registry.models import SITE_PATTERN, PrinterConfig
 
 if TYPE_CHECKING:
     from kybercore.api.app import OnStarted
@@ -49,6 +50,14 @@ def ingest(
         str | None, typer.Option(help="This worker's name (default: host name and PID).")
     ] = None,
     slots: Slots = 64,
+    site: Annotated[
+        str,
+        typer.Option(
+            help="Hold only the printers of this site (their 'site' field); default: the "
+            "printers without one.",
+            show_default=False,
+        ),
+    ] = "",
     lease_ttl: Annotated[
         float, typer.Option(min=1.0, help="Seconds a lease lasts without renewal.")
     ] = 6.0,
@@ -78,8 +87,13 @@ def ingest(
     where = folder or kybercore_home() / "workers" / name
     _logging(log_level)
     try:
+        if not re.fullmatch(SITE_PATTERN, site):
+            raise fail(
+                f"'{site}' is not a site name: lowercase letters, digits, '-' and '_', up to "
+                "32 characters, starting with a letter or digit."
+            )
         where.mkdir(parents=True, exist_ok=True)
-        asyncio.run(_ingest(nats_url, name, slots, lease_ttl, grace, where, database_url))
+        asyncio.run(_ingest(nats_url, name, slots, site, lease_ttl, grace, where, database_url))
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     except OSError as exc:
@@ -91,8 +105,9 @@ def _unreachable(url: str, exc: OSError) -> typer.Exit:
 
 
 async def _ingest(
-    url: str, name: str, slots: int, ttl: float, grace: float, folder: Path, database: str | None
-) -> None:
+    url: str, name: str, slots: int, site: str, ttl: float, grace: float, folder: Path,
+    database: str | None,
+) -> None:  # fmt: skip
     from kybercore.db import open_database
     from kybercore.moonraker.http import new_http_client
     from kybercore.scale.broker import connect
@@ -102,11 +117,12 @@ async def _ingest(
     nc = await connect(url, f"kybercore-ingest-{name}")
     async with new_http_client() as http:
         worker = Worker(
-            nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, grace=grace,
-            database=engine,
+            nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, site=site,
+            grace=grace, database=engine,
         )
         await worker.start()
-        logging.getLogger(__name__).info("worker %s up on %s", name, url)
+        where = f" for site '{site}'" if site else ""
+        logging.getLogger(__name__).info("worker %s up on %s%s", name, url, where)
         await _until_signal()
         await worker.stop()
     await nc.close()

@@ -28,6 +28,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 SLUG_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+SITE_PATTERN = r"^(?:[a-z0-9][a-z0-9_-]{0,31})?$"
 MAX_URL_LENGTH = 2048
 URL_PATTERN = (
     r"^(?:[Hh][Tt][Tt][Pp][Ss]?://)?"
@@ -147,6 +148,7 @@ def _api_key_input(value: object) -> object:
 
 
 Slug = Annotated[str, StringConstraints(pattern=SLUG_PATTERN)]
+Site = Annotated[str, StringConstraints(pattern=SITE_PATTERN)]
 Url = Annotated[
     str,
     StringConstraints(max_length=MAX_URL_LENGTH),
@@ -178,6 +180,10 @@ _DOC = {
     "power_group": "The circuit the printer shares with others, e.g. 'Room B, breaker 3': "
     "the job queue lets only a few printers of one group heat at once. Empty means its "
     "location.",
+    "site": "The site (building, town) whose KyberCore workers connect to the printer when "
+    "KyberCore runs on NATS (`kybercore ingest --site`): lowercase letters, digits, '-' and "
+    "'_', up to 32 characters. Empty: the workers started without --site. One process "
+    "(`kybercore serve`) holds every site.",
     "tags": "Short labels (1-32 characters each, at most 32) for grouping; duplicates dropped.",
     "notes": "Free text for the operators, up to 2000 characters.",
     "moonraker_url": "Moonraker's address: http or https, host, optional port "
@@ -227,6 +233,7 @@ class _PrinterFields(_Model):
     model: ShortText = Field(default="", description=_DOC["model"])
     location: ShortText = Field(default="", description=_DOC["location"])
     power_group: ShortText = Field(default="", description=_DOC["power_group"])
+    site: Site = Field(default="", description=_DOC["site"])
     tags: Tags = Field(default_factory=list, description=_DOC["tags"])
     notes: Notes = Field(default="", description=_DOC["notes"])
     moonraker_url: Url = Field(description=_DOC["moonraker_url"])
@@ -261,6 +268,7 @@ class PrinterPublic(_Model):
     model: ShortText = Field(description=_DOC["model"])
     location: ShortText = Field(description=_DOC["location"])
     power_group: ShortText = Field(description=_DOC["power_group"])
+    site: Site = Field(description=_DOC["site"])
     tags: Tags = Field(description=_DOC["tags"])
     notes: Notes = Field(description=_DOC["notes"])
     moonraker_url: Url = Field(description=_DOC["moonraker_url"])
@@ -293,6 +301,7 @@ class PrinterUpdate(_Model):
     model: ShortText | None = Field(default=None, description=_DOC["model"])
     location: ShortText | None = Field(default=None, description=_DOC["location"])
     power_group: ShortText | None = Field(default=None, description=_DOC["power_group"])
+    site: Site | None = Field(default=None, description=_DOC["site"])
     tags: Tags | None = Field(default=None, description=_DOC["tags"])
     notes: Notes | None = Field(default=None, description=_DOC["notes"])
     moonraker_url: Url | None = Field(default=None, description=_DOC["moonraker_url"])

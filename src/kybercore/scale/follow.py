@@ -3,11 +3,11 @@
 Pure bookkeeping, no I/O: the front (:mod:`.front`) feeds it the patch batches and
 snapshots it receives and asks it which slots need a snapshot and which are stale.
 
-Per slot: patches of an older epoch are from an owner that lost the slot (paused, cut
-off): ignored. A newer epoch, or a gap in the sequence, means the copy may have missed
-something: the slot waits for a snapshot (patches arriving meanwhile are kept and applied
-after it, those the snapshot already holds skipped). A slot silent for
-:data:`STALE_SECONDS` (no patch, no heartbeat) is stale: its printers are shown as such.
+Per slot (of a site: :class:`~.slots.SlotRef`): patches of an older epoch are from an owner
+that lost the slot (paused, cut off): ignored. A newer epoch, or a gap in the sequence,
+means the copy may have missed something: the slot waits for a snapshot (patches arriving
+meanwhile are kept and applied after it, those the snapshot already holds skipped). A slot
+silent for :data:`STALE_SECONDS` (no patch, no heartbeat) is stale: its printers are shown as such.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from typing import Any, Final
 
 from kybercore.core.view import View
 from kybercore.moonraker.objects import merge_status
+from kybercore.scale.slots import SlotRef
 
 STALE_SECONDS: Final = 2.0
 
@@ -58,28 +59,31 @@ Patched = Callable[[str, View, dict[str, Any]], None]
 
 
 class FleetCopy:
-    """Every printer's last view as its owner published it, by slot."""
+    """Every printer's last view as its owner published it, by slot (of every site)."""
 
     def __init__(
         self,
-        slots: int,
         changed: Changed,
         patched: Patched,
         event: Callable[[dict[str, Any]], None],
     ) -> None:
         """A snapshot's views and a slot's staleness reach ``changed``; a batch's patches
         reach ``patched`` as they are."""
-        self.slots = [SlotCopy() for _ in range(slots)]
+        self.slots: dict[SlotRef, SlotCopy] = {}
+        """The slots heard from (a slot never heard is stale)."""
         self.views: dict[str, View] = {}
         self._changed = changed
         self._patched = patched
         self._event = event
-        self.members: dict[int, set[str]] = {}
+        self.members: dict[SlotRef, set[str]] = {}
         """Printers last seen in each slot (to mark them when the slot goes stale)."""
+        self._home: dict[str, SlotRef] = {}
+        """The slot that last reported each printer: a printer moved to another site is
+        removed from its old slot, maybe after its new one reported it."""
 
-    def batch(self, slot: int, body: dict[str, Any], now: float) -> bool:
+    def batch(self, slot: SlotRef, body: dict[str, Any], now: float) -> bool:
         """Take a patch batch (or heartbeat); True when the slot needs a snapshot now."""
-        copy = self.slots[slot]
+        copy = self.slots.setdefault(slot, SlotCopy())
         epoch, seq = int(body["epoch"]), int(body["seq"])
         if epoch < copy.epoch:
             return False
@@ -99,17 +103,16 @@ class FleetCopy:
         copy.synced, copy.waiting = False, [body]
         return True
 
-    def snapshot(self, slot: int, body: dict[str, Any], now: float) -> bool:
+    def snapshot(self, slot: SlotRef, body: dict[str, Any], now: float) -> bool:
         """Take a slot's snapshot; True when it is still not in step (ask again)."""
-        copy = self.slots[slot]
+        copy = self.slots.setdefault(slot, SlotCopy())
         epoch = int(body["epoch"])
         if epoch < copy.epoch:
             return True
         copy.epoch, copy.seq, copy.synced, copy.heard = epoch, int(body["seq"]), True, now
         _heard_from(copy, body)
         for printer_id, view in body["views"].items():
-            self.views[printer_id] = view
-            self.members.setdefault(slot, set()).add(printer_id)
+            self._take(slot, printer_id, view)
             self._changed(printer_id)
         waiting, copy.waiting = copy.waiting, []
         for batch in sorted(waiting, key=lambda b: int(b["seq"])):
@@ -121,42 +124,63 @@ class FleetCopy:
             self._apply(slot, batch)
         return False
 
-    def _apply(self, slot: int, body: dict[str, Any]) -> None:
+    def _take(self, slot: SlotRef, printer_id: str, view: View) -> None:
+        self.views[printer_id] = view
+        before = self._home.get(printer_id)
+        if before != slot:
+            if before is not None:
+                self.members[before].discard(printer_id)
+            self._home[printer_id] = slot
+            self.members.setdefault(slot, set()).add(printer_id)
+
+    def _apply(self, slot: SlotRef, body: dict[str, Any]) -> None:
         copy = self.slots[slot]
         copy.seq = int(body["seq"])
-        members = self.members.setdefault(slot, set())
         for printer_id, patch in body["patches"].items():
             old = self.views.get(printer_id)
-            view = self.views[printer_id] = patch if old is None else merge_status(old, patch)
-            members.add(printer_id)
+            view = patch if old is None else merge_status(old, patch)
+            self._take(slot, printer_id, view)
             self._patched(printer_id, view, patch)
         for printer_id in body["removed"]:
+            self.members.get(slot, set()).discard(printer_id)
+            if self._home.get(printer_id, slot) != slot:
+                continue  # moved: its new slot holds it now
+            self._home.pop(printer_id, None)
             self.views.pop(printer_id, None)
-            members.discard(printer_id)
             self._changed(printer_id)
         for event in body["events"]:
             self._event(event)
 
-    def check(self, now: float) -> list[int]:
+    def check(self, now: float) -> list[SlotRef]:
         """Mark slots stale or fresh by their last news; the slots needing a snapshot
         (not in step, and heard from, so that someone owns them)."""
-        for slot, copy in enumerate(self.slots):
+        for slot, copy in self.slots.items():
             stale = now - copy.heard > STALE_SECONDS
             if stale != copy.stale:
                 copy.stale = stale
                 for printer_id in self.members.get(slot, ()):
                     self._changed(printer_id)
-        return [slot for slot, copy in enumerate(self.slots) if not copy.synced and not copy.stale]
+        return [slot for slot, copy in self.slots.items() if not copy.synced and not copy.stale]
 
-    def is_stale(self, slot: int) -> bool:
+    def is_stale(self, slot: SlotRef) -> bool:
         """Whether the slot's owner has been silent too long (or was never heard)."""
-        return self.slots[slot].stale
+        copy = self.slots.get(slot)
+        return copy is None or copy.stale
+
+    def heard(self, slot: SlotRef) -> bool:
+        """Whether any owner of the slot was ever heard from."""
+        return slot in self.slots
+
+    def epoch(self, slot: SlotRef) -> int:
+        """The slot's epoch as last heard (0: never)."""
+        copy = self.slots.get(slot)
+        return 0 if copy is None else copy.epoch
 
     def workers(self) -> dict[str, WorkerSeen]:
         """The workers reporting fresh slots now: how many each, and its loop's lag."""
         latest: dict[str, SlotCopy] = {}
         counts: dict[str, int] = {}
-        for copy in self.slots:
+        for copy in self.slots.values():
             if copy.stale or not copy.worker:
                 continue
             counts[copy.worker] = counts.get(copy.worker, 0) + 1

@@ -53,7 +53,7 @@ from kybercore.scale.broker import connect
 from kybercore.scale.commands import send_command
 from kybercore.scale.follow import STALE_SECONDS, FleetCopy
 from kybercore.scale.registry import KvRegistry
-from kybercore.scale.slots import slot_of
+from kybercore.scale.slots import SlotRef, slot_of
 from kybercore.scale.streams import open_stream
 from kybercore.scale.uploads import send_upload
 from kybercore.scale.wire import (
@@ -64,6 +64,7 @@ from kybercore.scale.wire import (
     decode_webcams,
     loads,
     patch_subject,
+    slot_of_subject,
 )
 from kybercore.scale.wire import snapshot_subject as snap_subject
 
@@ -101,8 +102,8 @@ class FrontFleet(FleetService):
         self._unreported: dict[str, tuple[PrinterConfig, View]] = {}
         """Each printer's view until an owner reports it, for the config it was made of."""
         self._watchers: tuple[Watcher, ...] = ()
-        self.copy = FleetCopy(slots, self._changed, self._patched, self.hub.event)
-        self._asking: set[int] = set()
+        self.copy = FleetCopy(self._changed, self._patched, self.hub.event)
+        self._asking: set[SlotRef] = set()
         self._tasks: list[asyncio.Task[Any]] = []
 
     async def start(self) -> None:
@@ -115,7 +116,7 @@ class FrontFleet(FleetService):
             if imported := await self.kv.import_if_empty(printers):
                 log.info("imported %d printers from %s", imported, self._printers_file)
         self._on_printers(await self.kv.printers())
-        await self._nc.subscribe(patch_subject("*"), cb=self._on_batch)
+        await self._nc.subscribe(patch_subject("*", "*"), cb=self._on_batch)
         await self._nc.subscribe("kc.gcode.*", cb=self._on_console_line)
         self.hub.start()
         self._tasks = [
@@ -150,9 +151,13 @@ class FrontFleet(FleetService):
         for printer_id in before | set(self._configs):
             self._changed(printer_id)
 
+    def _slot(self, printer_id: str) -> SlotRef:
+        config = self._configs.get(printer_id)
+        return SlotRef(config.site if config else "", slot_of(printer_id, self._slots))
+
     async def _on_batch(self, msg: Msg) -> None:
-        slot = int(msg.subject.split(".")[2])
-        if slot < self._slots and self.copy.batch(slot, loads(msg.data), time.monotonic()):
+        slot = slot_of_subject(msg.subject)
+        if slot.slot < self._slots and self.copy.batch(slot, loads(msg.data), time.monotonic()):
             self._ask_snapshot(slot)
 
     async def _on_console_line(self, msg: Msg) -> None:
@@ -165,15 +170,16 @@ class FrontFleet(FleetService):
             for slot in self.copy.check(time.monotonic()):
                 self._ask_snapshot(slot)
 
-    def _ask_snapshot(self, slot: int) -> None:
+    def _ask_snapshot(self, slot: SlotRef) -> None:
         if slot not in self._asking:
             self._asking.add(slot)
             task = asyncio.create_task(self._snapshot(slot))
             task.add_done_callback(lambda _t: self._asking.discard(slot))
 
-    async def _snapshot(self, slot: int) -> None:
+    async def _snapshot(self, slot: SlotRef) -> None:
+        subject = snap_subject(slot.slot, slot.site)
         try:
-            reply = await self._nc.request(snap_subject(slot), b"", timeout=SNAPSHOT_TIMEOUT)
+            reply = await self._nc.request(subject, b"", timeout=SNAPSHOT_TIMEOUT)
         except (NoRespondersError, NatsTimeout, TimeoutError):
             return  # the slot is moving; its next batch asks again
         body = loads(reply.data)
@@ -184,8 +190,7 @@ class FrontFleet(FleetService):
     def _patched(self, printer_id: str, view: View, patch: dict[str, Any]) -> None:
         # The worker's patch goes on to the browsers as it is (no render, no diff), unless
         # the front shows the printer otherwise: not in its registry yet, or stale.
-        slot = slot_of(printer_id, self._slots)
-        if printer_id in self._configs and not self.copy.is_stale(slot):
+        if printer_id in self._configs and not self.copy.is_stale(self._slot(printer_id)):
             self.hub.patched(printer_id, view, patch)
             self._tell(printer_id, patch)
         else:
@@ -226,9 +231,10 @@ class FrontFleet(FleetService):
             # 5,000 printers coming online, fusing each every time took a third of a core.
             made = self._unreported.get(printer_id)
             if made is None or made[0] is not config:
-                made = self._unreported[printer_id] = (config, fuse(config, LivePrinter()))
+                unheard = LivePrinter(connection_error=_unheard(config.site))
+                made = self._unreported[printer_id] = (config, fuse(config, unheard))
             return made[1]
-        if self.copy.is_stale(slot_of(printer_id, self._slots)):
+        if self.copy.is_stale(self._slot(printer_id)):
             message = (
                 f"No news from the KyberCore worker holding this printer for over "
                 f"{STALE_SECONDS:.0f} s; another worker takes it over shortly."
@@ -254,7 +260,7 @@ class FrontFleet(FleetService):
     def reported(self, printer_id: str) -> bool:
         """Whether a worker reports the printer now: its slot's owner was heard within
         :data:`~.follow.STALE_SECONDS` (never, for a slot nobody holds)."""
-        return not self.copy.is_stale(slot_of(printer_id, self._slots))
+        return not self.copy.is_stale(self._slot(printer_id))
 
     def view(self, printer_id: str) -> View:
         """One printer's view, as last published."""
@@ -308,7 +314,7 @@ class FrontFleet(FleetService):
         """Run the command ``op`` (:mod:`.ops`) on the printer's owner, with the slot epoch
         the front knows; its result (see :func:`~kybercore.scale.commands.send_command`)."""
         self.config(printer_id)
-        epoch = self.copy.slots[slot_of(printer_id, self._slots)].epoch
+        epoch = self.copy.epoch(self._slot(printer_id))
         return await send_command(self._nc, printer_id, op, args, epoch=epoch)
 
     async def dry_run(
@@ -354,10 +360,10 @@ class FrontFleet(FleetService):
         """Stream the file through the ``kc_uploads`` object store to the printer's owner,
         which uploads it (and starts it) as ``kybercore serve`` does; its real outcome."""
         self.config(printer_id)
-        slot = slot_of(printer_id, self._slots)
+        slot = self._slot(printer_id)
         body = await send_upload(
             self._nc, printer_id, filename, content, start=start, confirm=confirm,
-            epoch=lambda: self.copy.slots[slot].epoch,
+            epoch=lambda: self.copy.epoch(slot),
         )  # fmt: skip
         outcome = decode_outcome(body)
         if outcome.error is not None:
@@ -409,5 +415,16 @@ class FrontFleet(FleetService):
     async def camera_stream(self, printer_id: str, name: str) -> CameraStream:
         """The webcam's live MJPEG stream, relayed by the printer's owner (:mod:`.streams`)."""
         self.config(printer_id)
-        epoch = self.copy.slots[slot_of(printer_id, self._slots)].epoch
+        epoch = self.copy.epoch(self._slot(printer_id))
         return await open_stream(self._nc, printer_id, name, epoch=epoch)
+
+
+def _unheard(site: str) -> str:
+    # Said until a worker reports the printer: a site without workers would otherwise show
+    # "connecting" with no reason forever.
+    if site:
+        return (
+            f"No KyberCore worker of site '{site}' has reported this printer yet: start one "
+            f"there with `kybercore ingest --site {site}`."
+        )
+    return "No KyberCore worker has reported this printer yet: is `kybercore ingest` running?"

@@ -10,7 +10,7 @@ dropped and claimed again.
 Every TTL/3, too, a round:
 
 1. writes its heartbeat into ``kc_workers`` (a bucket whose keys expire after the TTL), and
-   counts the live workers: its fair share is ``ceil(S / workers)``;
+   counts the live workers of its site: its fair share is ``ceil(S / workers)``;
 2. releases the slots above its share (a delete, also compare-and-set);
 3. creates free slots (``create`` succeeds only if the key is absent) up to its share: it
    reads the other slots' keys at once, and creates as many free ones at once as it lacks.
@@ -22,6 +22,9 @@ slot's epoch, carried on everything the owner publishes, so its late messages ar
 
 Every gain and loss is written as a JSON line (``own``/``drop``) so that ownership can be
 replayed: per slot, intervals of different workers must never overlap.
+
+A worker started for a site (:mod:`.slots`) holds that site's slots only (keys
+``<site>.s<n>``), shared among that site's workers.
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
-from kybercore.scale.slots import fair_share, slot_key
+from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
 
 log = logging.getLogger(__name__)
 
@@ -88,12 +91,16 @@ class Leases:
 
     def __init__(
         self, nc: Client, worker: str, *, url: str, slots: int, ttl: float,
-        log_path: Path | None = None, on_change: Change | None = None,
+        site: str = DEFAULT_SITE, log_path: Path | None = None,
+        on_change: Change | None = None,
     ) -> None:  # fmt: skip
-        """``url``: the broker's, for the renewals' own connection."""
+        """``url``: the broker's, for the renewals' own connection; ``site``: whose slots."""
         self._nc = nc
         self._url = url
         self.worker = worker
+        self.site = site
+        self._heartbeat = f"{site_token(site)}.{worker}"
+        """This worker's key in ``kc_workers``: its site first, to count a site's workers."""
         self.slots = slots
         self.ttl = ttl
         self._log_path = log_path
@@ -130,8 +137,7 @@ class Leases:
             self._drop(slot, "stop")  # before the delete, as a release is
             if release:
                 with contextlib.suppress(Exception):  # the broker may be gone: TTL frees it
-                    assert self._kv is not None
-                    await self._kv.delete(slot_key(slot), last=held.revision)
+                    await self._release(slot, held)
         await self.flush_log()
 
     def epoch(self, slot: int) -> int | None:
@@ -155,7 +161,7 @@ class Leases:
         # every slot (and every printer's connection) only to hand half of them back.
         with contextlib.suppress(Exception):  # the broker away: the rounds say so
             assert self._workers is not None
-            await self._workers.put(self.worker, b"1")
+            await self._workers.put(self._heartbeat, b"1")
             await asyncio.sleep(self.ttl / 3)
         # Stopped with this task: cancelling it (a stop, or a test standing in for a paused
         # process) stops the renewals too. ``round`` and ``renew`` are looked up at each call
@@ -200,11 +206,13 @@ class Leases:
         """One heartbeat, release and claim pass."""
         assert self._kv is not None
         assert self._workers is not None
-        await self._workers.put(self.worker, b"1")
+        await self._workers.put(self._heartbeat, b"1")
         try:
-            workers = len(await self._workers.keys())
+            keys = await self._workers.keys()
         except NoKeysError:
-            workers = 1
+            keys = []
+        site = self._heartbeat.split(".", 1)[0] + "."
+        workers = sum(key.startswith(site) for key in keys)
         share = fair_share(self.slots, workers)
         self.owned()
         for slot in sorted(self._held)[share:]:
@@ -226,7 +234,7 @@ class Leases:
         while held.renewing:  # noqa: ASYNC110
             await asyncio.sleep(RENEWAL_POLL)
         try:
-            await self._kv.delete(slot_key(slot), last=held.revision)
+            await self._kv.delete(self._key(slot), last=held.revision)
         except (KeyNotFoundError, BadRequestError) as exc:
             if not _wrong_last(exc):
                 raise
@@ -240,7 +248,7 @@ class Leases:
                 return  # released or dropped meanwhile: its key is not renewed any more
             sent = time.monotonic()
             value = self._value(held.epoch)
-            held.revision = await kv.update(slot_key(slot), value, last=held.revision)
+            held.revision = await kv.update(self._key(slot), value, last=held.revision)
             held.renewed_sent = sent
         except (KeyWrongLastSequenceError, KeyNotFoundError):
             assert self._home is not None
@@ -271,7 +279,7 @@ class Leases:
     async def _taken(self, slot: int) -> bool:
         assert self._kv is not None
         try:
-            await self._kv.get(slot_key(slot))
+            await self._kv.get(self._key(slot))
         except KeyNotFoundError:  # never written, expired, or deleted
             return False
         return True
@@ -280,7 +288,7 @@ class Leases:
         assert self._kv is not None
         sent = time.monotonic()
         try:
-            revision = await self._kv.create(slot_key(slot), self._value(0))
+            revision = await self._kv.create(self._key(slot), self._value(0))
         except KeyWrongLastSequenceError:
             return  # taken since it was read
         except KeyNotFoundError:
@@ -292,6 +300,9 @@ class Leases:
         if self._on_change:
             self._on_change(slot, revision, "")
 
+    def _key(self, slot: int) -> str:
+        return slot_key(slot, self.site)
+
     def _value(self, epoch: int) -> bytes:
         return json.dumps({"w": self.worker, "epoch": epoch}).encode()
 
@@ -299,7 +310,7 @@ class Leases:
         held = self._held.pop(slot, None)
         if held is None:
             return
-        log.info("%s: slot %d dropped (%s)", self.worker, slot, why)
+        log.info("%s: slot %s dropped (%s)", self.worker, self._key(slot), why)
         self._write("drop", slot, held.epoch, why=why, at=at)
         if self._on_change:
             self._on_change(slot, None, why)
@@ -310,7 +321,10 @@ class Leases:
         # "at": when it took effect; a fence takes effect 0.8·TTL after the last renewal,
         # however late it is noticed. Wall time lets logs of several processes be merged.
         wall = time.time() - (time.monotonic() - at) if at is not None else time.time()
-        line = {"ev": event, "slot": slot, "epoch": epoch, "worker": self.worker, "why": why}
+        line = {
+            "ev": event, "slot": slot, "key": self._key(slot), "epoch": epoch,
+            "worker": self.worker, "why": why,
+        }  # fmt: skip
         self._pending.append(json.dumps({**line, "t": wall}))
 
     async def flush_log(self) -> None:

@@ -23,6 +23,7 @@ from kybercore.core.validation import Verdict
 from kybercore.fleet.actions import ActionOutcome
 from kybercore.fleet.images import Image
 from kybercore.fleet.webcams import Webcam
+from kybercore.scale.slots import DEFAULT_SITE, SlotRef, site_of_token, site_token
 
 EPOCH_HEADER: Final = "KC-Epoch"
 """The slot epoch a front knows for the printer: a worker holding another epoch refuses."""
@@ -31,14 +32,21 @@ MAX_IMAGE: Final = 700 * 1024
 stays within NATS's default limit of 1 MiB per message."""
 
 
-def patch_subject(slot: int | str) -> str:
-    """Where a slot's owner publishes its per-tick patch batches (``*``: every slot)."""
-    return f"kc.s.{slot}.patch"
+def patch_subject(slot: int | str, site: str = DEFAULT_SITE) -> str:
+    """Where a slot's owner publishes its per-tick patch batches (``*``, ``*``: every slot
+    of every site)."""
+    return f"kc.s.{site_token(site)}.{slot}.patch"
 
 
-def snapshot_subject(slot: int) -> str:
+def slot_of_subject(subject: str) -> SlotRef:
+    """The site and slot a :func:`patch_subject` names."""
+    _kc, _s, site, slot, _patch = subject.split(".")
+    return SlotRef(site_of_token(site), int(slot))
+
+
+def snapshot_subject(slot: int, site: str = DEFAULT_SITE) -> str:
     """Where a slot's owner answers with the full views of the slot's printers."""
-    return f"kc.s.{slot}.snap"
+    return f"kc.s.{site_token(site)}.{slot}.snap"
 
 
 def command_subject(printer_id: str) -> str:

@@ -4,17 +4,20 @@ It holds slots by lease (:mod:`.leases`), and for the printers of its slots it r
 ``kybercore serve`` runs for all of them: Moonraker sessions, live state, fused views and
 validated actions (a :class:`FleetService`). Instead of browsers it has NATS:
 
-- once per hub tick, one patch batch per slot on ``kc.s.<slot>.patch``, with the slot's
-  epoch, a sequence number and how late the worker's event loop runs (an empty one each
-  second as a heartbeat);
-- the slot's full views on request at ``kc.s.<slot>.snap`` (a front that starts, or saw a
-  gap or a new epoch);
+- once per hub tick, one patch batch per slot on ``kc.s.<site>.<slot>.patch``, with the
+  slot's epoch, a sequence number and how late the worker's event loop runs (an empty one
+  each second as a heartbeat);
+- the slot's full views on request at ``kc.s.<site>.<slot>.snap`` (a front that starts, or
+  saw a gap or a new epoch);
 - commands at ``kc.cmd.<printer id>``: acknowledged at once, then answered with the outcome
   (:mod:`.commands`).
 
 A slot it stops owning is no longer published or acted for at once, but its printers'
 Moonraker sessions are kept for a grace period: if the slot comes back (a broker blip),
 nothing reconnects.
+
+A worker started for a site holds that site's printers only; ``_`` is the default site in
+subjects (:mod:`.slots`).
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from kybercore.scale.commands import CommandRunner
 from kybercore.scale.jobfiles import JobFileBucket
 from kybercore.scale.leases import Leases
 from kybercore.scale.registry import KvRegistry
-from kybercore.scale.slots import slot_of
+from kybercore.scale.slots import DEFAULT_SITE, slot_of
 from kybercore.scale.streams import StreamRelay
 from kybercore.scale.uploads import Uploads
 from kybercore.scale.wire import (
@@ -78,17 +81,20 @@ class Worker:
         slots: int,
         ttl: float,
         folder: Path,
+        site: str = DEFAULT_SITE,
         grace: float = GRACE_SECONDS,
         connect: Connect = picows.ws_connect,
         database: AsyncEngine | None = None,
     ) -> None:
         """``url``: the broker's (``nc``'s), for the lease renewals' own connection.
+        ``site``: the worker holds the printers of this site only (:mod:`.slots`).
         ``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
         (the one the fronts read), the worker keeps the ledger of the printers it acts
         for: their job history and state timeline."""
         self._nc = nc
         self.worker_id = worker_id
         self.slots = slots
+        self.site = site
         self._grace = grace
         self.registry = KvRegistry(read_keys=True)
         # Never read: the worker's printers come from the bucket, applied by _reconcile.
@@ -97,8 +103,8 @@ class Worker:
             unused, http, connect=connect, on_publish=self._published, on_console=self._console
         )
         self.leases = Leases(
-            nc, worker_id, url=url, slots=slots, ttl=ttl, log_path=folder / "leases.jsonl",
-            on_change=self._lease_changed,
+            nc, worker_id, url=url, slots=slots, ttl=ttl, site=site,
+            log_path=folder / "leases.jsonl", on_change=self._lease_changed,
         )  # fmt: skip
         self.commands = CommandRunner(
             self.service, self._epoch_of, uploads=Uploads(nc), jobfiles=JobFileBucket(nc),
@@ -165,7 +171,9 @@ class Worker:
         self._wake.set()
 
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
-        self._printers = printers
+        # Another site's printers are its own workers' (a printer moved to another site
+        # leaves this worker's sessions, and its removal is published to the fronts).
+        self._printers = [p for p in printers if p.site == self.site]
         self._version += 1
         self._wake.set()
 
@@ -194,7 +202,7 @@ class Worker:
         for slot in set(owned) - set(self._owned):
             self._kept.pop(slot, None)
             self._snap_subs[slot] = await self._nc.subscribe(
-                snapshot_subject(slot), cb=self._on_snapshot_request
+                snapshot_subject(slot, self.site), cb=self._on_snapshot_request
             )
         self._owned = owned
         self._kept = {s: until for s, until in self._kept.items() if until > now}
@@ -258,7 +266,7 @@ class Worker:
             return
         message = {**self._signature(slot, epoch), **body}
         self._sent_at[slot] = time.monotonic()
-        self._outbox.put_nowait((patch_subject(slot), dumps(message)))
+        self._outbox.put_nowait((patch_subject(slot, self.site), dumps(message)))
 
     async def _heartbeat(self) -> None:
         now = time.monotonic()
@@ -281,7 +289,7 @@ class Worker:
                 log.debug("%s: publish to %s failed: %s", self.worker_id, subject, exc)
 
     async def _on_snapshot_request(self, msg: Msg) -> None:
-        slot = int(msg.subject.split(".")[2])
+        slot = int(msg.subject.split(".")[3])
         epoch = self.leases.epoch(slot)
         if epoch is None or slot not in self._owned:
             await msg.respond(dumps({"moving": True}))
