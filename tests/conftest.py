@@ -17,6 +17,7 @@ from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
+from tests.db.postgres import PostgresServer, PostgresUnavailable
 from tests.helpers import KyberCoreServer
 from tests.notify.receiver import Receiver
 
@@ -136,3 +137,22 @@ def nats_server(tmp_path: Path) -> Iterator[LocalServer]:
     server.start()
     yield server
     server.close()
+
+
+@pytest.fixture(scope="session")
+def postgres_server() -> Iterator[PostgresServer | PostgresUnavailable]:
+    """The session's one PostgreSQL server, started the first time a test asks for one (or
+    why it could not start); each test makes a database of its own on it."""
+    try:
+        server = PostgresServer()
+    except PostgresUnavailable as exc:
+        yield exc
+        return
+    try:
+        server.start()
+    except PostgresUnavailable as exc:
+        server.stop()
+        yield exc
+        return
+    yield server
+    server.stop()

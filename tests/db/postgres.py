@@ -18,6 +18,8 @@ import time
 from pathlib import Path
 from typing import Final
 
+import pytest
+
 from kybercore.sim.stack import free_port
 
 USER: Final = "kybercore"
@@ -167,3 +169,10 @@ def _service_account() -> pwd.struct_passwd:
         except KeyError:
             continue
     raise PostgresUnavailable("running as root and neither a 'postgres' nor a 'nobody' user")
+
+
+def unavailable(reason: str) -> None:
+    """Fail on CI, where PostgreSQL must run; skip elsewhere."""
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"PostgreSQL is required on CI: {reason}")
+    pytest.skip(f"PostgreSQL unavailable: {reason}")

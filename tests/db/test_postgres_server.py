@@ -6,8 +6,7 @@ import pytest
 
 from kybercore.db import open_database
 from kybercore.errors import ConfigError
-from tests.db.postgres import PostgresServer, PostgresUnavailable
-from tests.jobs.conftest import unavailable
+from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
 
 
 def server_or_skip(server: PostgresServer | PostgresUnavailable) -> PostgresServer:

@@ -1,5 +1,5 @@
 """The database fixtures of tests/jobs (one SQLite file or PostgreSQL database per test)."""
 
-from tests.jobs.conftest import database, database_url, postgres_server
+from tests.jobs.conftest import database, database_url
 
-__all__ = ["database", "database_url", "postgres_server"]
+__all__ = ["database", "database_url"]

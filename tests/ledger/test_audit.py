@@ -20,9 +20,9 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.api.auth import TOKEN_PREFIX
 from kybercore.ledger.audit import REDACTED, AuditEntry, AuditLog, AuditQuery, audit, redact
-from tests.jobs.conftest import database, database_url, postgres_server
+from tests.jobs.conftest import database, database_url
 
-__all__ = ["database", "database_url", "postgres_server"]  # the fixtures, for pytest
+__all__ = ["database", "database_url"]  # the fixtures, for pytest
 
 T0 = datetime(2026, 11, 20, 12, 0, tzinfo=UTC)
 

@@ -13,9 +13,9 @@ from kybercore.notify.models import EventKind, FleetEvent, PrinterRef
 from kybercore.notify.records import Channel
 from kybercore.notify.rules import ChannelRules
 from kybercore.notify.store import NotifyStore
-from tests.jobs.conftest import database, database_url, postgres_server
+from tests.jobs.conftest import database, database_url
 
-__all__ = ["database", "database_url", "postgres_server"]
+__all__ = ["database", "database_url"]
 
 SECRET = "whsec_test_0123456789"
 

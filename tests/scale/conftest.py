@@ -10,12 +10,9 @@ from pathlib import Path
 import pytest
 
 from kybercore.sim.stack import PrinterStack, free_port
-from tests.db.postgres import PostgresServer, PostgresUnavailable
+from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
 from tests.helpers import KyberCoreServer
-from tests.jobs.conftest import postgres_server, unavailable
 from tests.scale.cluster import SLOTS, TTL, Cluster, fresh_cluster
-
-__all__ = ["postgres_server"]
 
 
 @pytest.fixture
