@@ -142,6 +142,9 @@ def test_edit_changes_only_what_is_given(path: Path) -> None:
     assert voron.capabilities.material == "ABS"  # kept
     assert voron.location == "Sala B"  # kept
     assert voron.api_key is not None  # kept
+    assert voron.site == ""
+    assert run(path, "edit", "voron", "--site", "lab-b").exit_code == 0
+    assert read_printers(path)[1].site == "lab-b"
 
 
 def test_edit_api_key_set_and_clear(path: Path) -> None:
@@ -176,6 +179,7 @@ def test_remove_asks_first(path: Path) -> None:
         (["add", "X", "--url", "http://x", "--id", "ender-3"], 2, "id 'ender-3' already exists"),
         (["add", "X", "--url", "http://x", "--size", "0", "1", "1"], 2, "--size: Input should"),
         (["add", "X", "--url", "http://x", "--nozzle", "-1"], 2, "--nozzle: Input should"),
+        (["edit", "ender-3", "--site", "Lab B"], 2, "--site: String should match"),
         (["edit", "nope", "--name", "Z"], 1, "No printer with id 'nope'"),
         (["edit", "ender-3"], 2, "Nothing to change"),
         (["edit", "ender-3", "--api-key", "k", "--clear-api-key"], 2, "not both"),

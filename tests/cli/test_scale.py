@@ -75,3 +75,9 @@ def test_no_broker_is_one_clear_line_and_no_file(tmp_path: Path) -> None:
     assert f"Cannot reach NATS at {url}" in result.output
     assert "Is nats-server -js running there?" in result.output
     assert not out.exists()
+
+
+def test_a_worker_for_a_site_that_is_no_site_name_is_one_clear_line() -> None:
+    result = run("ingest", "--nats", "nats://127.0.0.1:1", "--site", "Lab B")
+    assert result.exit_code == 1
+    assert "'Lab B' is not a site name: lowercase letters, digits" in result.output

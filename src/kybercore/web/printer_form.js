@@ -25,7 +25,9 @@ const num = (value, extra = {}) => h("input", { type: "number", value: typeof va
 function buildForm(p) {
   const caps = p?.capabilities || {};
   const volume = caps.build_volume || {};
-  const locations = h("datalist", { id: "pf-locations" }, facets().locations.map((l) => h("option", { value: l })));
+  const known = facets();
+  const locations = h("datalist", { id: "pf-locations" }, known.locations.map((l) => h("option", { value: l })));
+  const sites = h("datalist", { id: "pf-sites" }, known.sites.map((s) => h("option", { value: s })));
   const keyPlaceholder = p?.api_key_set ? t("form.api_key_keep") : t("form.optional");
   const parts = [
     field("name", t("form.name"), text(p?.name, { required: true, autofocus: true })),
@@ -36,6 +38,8 @@ function buildForm(p) {
     field("model", t("form.model"), text(p?.model, { placeholder: "Voron 2.4" })),
     field("location", t("form.location"), text(p?.location, { list: "pf-locations" })),
     locations,
+    field("site", t("form.site"), text(p?.site, { list: "pf-sites", pattern: "[a-z0-9][a-z0-9_-]{0,31}" }), t("form.site_hint")),
+    sites,
     field("tags", t("form.tags"), text((p?.tags || []).join(", ")), t("form.tags_hint")),
     field("notes", t("form.notes"), h("textarea", { rows: 2, text: p?.notes || "" })),
     h("label", { class: "check" }, h("input", { type: "checkbox", name: "enabled", checked: p ? p.enabled : true }), h("span", { text: t("form.enabled") })),
@@ -76,6 +80,7 @@ function read(form) {
     clear_key: Boolean(form.elements.clear_key?.checked),
     model: value("model"),
     location: value("location"),
+    site: value("site"),
     tags: value("tags").split(",").map((s) => s.trim()).filter(Boolean),
     notes: form.elements.notes.value,
     enabled: form.elements.enabled.checked,
@@ -84,7 +89,7 @@ function read(form) {
 }
 
 function createBody(v) {
-  const body = { name: v.name, moonraker_url: v.moonraker_url, model: v.model, location: v.location, tags: v.tags, notes: v.notes, enabled: v.enabled };
+  const body = { name: v.name, moonraker_url: v.moonraker_url, model: v.model, location: v.location, site: v.site, tags: v.tags, notes: v.notes, enabled: v.enabled };
   if (v.id) body.id = v.id;
   if (v.api_key) body.api_key = v.api_key;
   const caps = Object.fromEntries(Object.entries(v.capabilities).filter(([, x]) => x !== null));
@@ -95,7 +100,7 @@ function createBody(v) {
 /** Only what changed (PATCH keeps the rest); a cleared capability is sent as null. */
 function patchBody(p, v) {
   const body = {};
-  for (const key of ["name", "moonraker_url", "model", "location", "notes", "enabled"]) if (v[key] !== p[key]) body[key] = v[key];
+  for (const key of ["name", "moonraker_url", "model", "location", "site", "notes", "enabled"]) if (v[key] !== (p[key] ?? "")) body[key] = v[key];
   if (JSON.stringify(v.tags) !== JSON.stringify(p.tags || [])) body.tags = v.tags;
   if (v.api_key) body.api_key = v.api_key;
   else if (v.clear_key) body.api_key = "";

@@ -211,14 +211,16 @@ export function orderKey(p) {
   return `${s.group}|${p.name}|${p.location}|${(p.tags || []).join(",")}|${p.job?.filename}|${Math.round((p.job?.progress || 0) * 100)}|${p.job?.eta_seconds}`;
 }
 
-/** Every distinct tag and location, sorted (for the filter menus). */
+/** Every distinct tag, location and site, sorted (for the filter menus and the form). */
 export function facets() {
   const tags = new Set();
   const locations = new Set();
+  const sites = new Set();
   for (const p of printers.values()) {
     for (const tag of p.tags || []) tags.add(tag);
     if (p.location) locations.add(p.location);
+    if (p.site) sites.add(p.site);
   }
   const sort = (set) => [...set].sort((a, b) => a.localeCompare(b));
-  return { tags: sort(tags), locations: sort(locations) };
+  return { tags: sort(tags), locations: sort(locations), sites: sort(sites) };
 }

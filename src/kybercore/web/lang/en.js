@@ -277,6 +277,8 @@ export default {
   "form.api_key_clear": "Remove the stored API key",
   "form.model": "Model",
   "form.location": "Location",
+  "form.site": "Site",
+  "form.site_hint": "Only for KyberCore on NATS: the site whose workers connect to it (kybercore ingest --site). Lowercase letters, digits, - and _. Empty: the workers started without a site.",
   "form.tags": "Tags",
   "form.tags_hint": "Separated by commas, e.g. petg, room-b",
   "form.notes": "Notes",

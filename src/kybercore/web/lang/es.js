@@ -277,6 +277,8 @@ export default {
   "form.api_key_clear": "Borrar la clave de API guardada",
   "form.model": "Modelo",
   "form.location": "Ubicación",
+  "form.site": "Sede",
+  "form.site_hint": "Solo para KyberCore sobre NATS: la sede cuyos workers se conectan a ella (kybercore ingest --site). Minúsculas, dígitos, - y _. Vacío: los workers arrancados sin sede.",
   "form.tags": "Etiquetas",
   "form.tags_hint": "Separadas por comas, p. ej. petg, sala-b",
   "form.notes": "Notas",
