@@ -177,6 +177,9 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
 ) -> None:
     wait_until(lambda: cluster.all_fresh(3), 60, "every printer fresh")
     url = cluster.front.url
+    stack_c = fleet_stacks[2]
+    # The suite's other KyberCore processes may hold sockets to it too: count the change.
+    held = _sockets(stack_c)
     moved = httpx.patch(f"{url}/api/printers/fleet-c", json={"site": "lab-b"}, timeout=30)
     assert moved.status_code == 200, moved.text
     # No worker of lab-b yet: the default site's owner lets it go, and the front says
@@ -187,8 +190,7 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
         "fleet-c waiting for a lab-b worker",
     )
     assert _view(cluster, "fleet-c")["connection"] == "connecting"
-    stack_c = fleet_stacks[2]
-    wait_until(lambda: _sockets(stack_c) == 0, SETTLE, "fleet-c's session closed")
+    wait_until(lambda: _sockets(stack_c) == held - 1, SETTLE, "the cluster's session closed")
     gcode = {"script": "M115"}
     no_owner = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
     assert no_owner.status_code == 503, no_owner.text
@@ -199,7 +201,7 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
     assert _view(cluster, "fleet-c")["site"] == "lab-b"
     assert len(b1.owned()) == SLOTS
     assert len(cluster.workers["w1"].owned()) == len(cluster.workers["w2"].owned()) == SLOTS // 2
-    assert _sockets(stack_c) == 1  # connected once, from its site
+    assert _sockets(stack_c) == held  # connected once again, from its site
     answer = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
     assert answer.status_code == 200, answer.text
     assert any("FIRMWARE_NAME" in line for line in answer.json()["response"])
