@@ -79,8 +79,8 @@ SETTLE = 5 * (TTL + TTL / 3)
 def two_workers_and_a_front(
     stacks: list[PrinterStack], broker: LocalServer, folder: Path, database_url: str = ""
 ) -> Iterator[Cluster]:
-    """``stacks`` as a fleet on NATS: w1 (started first, so it holds slots 0-7 once w2
-    joins), w2, and a front importing their printers.json; stopped after. With
+    """``stacks`` as a fleet on NATS: w1 (started first), w2, their slots shared 8/8, and
+    then a front importing their printers.json; stopped after. With
     ``database_url``, all three share that database (the workers keep the ledger)."""
     printers = [
         PrinterConfig(
@@ -99,7 +99,11 @@ def two_workers_and_a_front(
     try:
         w1 = cluster.worker("w1")
         wait_until(lambda: len(w1.owned()) == SLOTS, SETTLE, "w1 owns every slot")
-        cluster.worker("w2")
+        w2 = cluster.worker("w2")
+        # Settled before the front starts: a printer it shows fresh is then reported by the
+        # owner that takes its commands, not by w1 about to hand it to w2 (a command in
+        # that handover gets 503 owner_moving, as it should, but a test would not expect it).
+        wait_until(lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2, SETTLE, "8/8")
         front.start()
         yield cluster
     finally:

@@ -146,11 +146,15 @@ def test_the_front_reads_acts_and_edits_through_the_workers(cluster: Cluster) ->
     assert httpx.get(f"{url}/api/printers/nope", timeout=10).status_code == 404
     files = httpx.get(f"{url}/api/printers/fleet-a/files", timeout=30)
     assert files.status_code == 200, files.text
-    # The M115 above and its answer are the printer's latest console entries.
-    history = httpx.get(f"{url}/api/printers/fleet-b/console", params={"count": 2}, timeout=30)
+    # The M115 above and its answer are among the printer's latest console entries (in a
+    # full run, other tests' prints may write there too).
+    history = httpx.get(f"{url}/api/printers/fleet-b/console", params={"count": 50}, timeout=30)
     assert history.status_code == 200
-    assert [entry["type"] for entry in history.json()] == ["command", "response"]
-    assert history.json()[0]["message"] == "M115"
+    messages = [entry["message"] for entry in history.json()]
+    assert "M115" in messages
+    assert any("FIRMWARE_NAME" in m for m in messages[messages.index("M115") :])
+    last = httpx.get(f"{url}/api/printers/fleet-b/console", params={"count": 1}, timeout=30)
+    assert len(last.json()) == 1
     # Edits land in the registry bucket and the workers follow them.
     renamed = httpx.patch(f"{url}/api/printers/fleet-b", json={"name": "Renamed B"}, timeout=30)
     assert renamed.status_code == 200, renamed.text
