@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from kybercore.fleet.temperatures import CAPACITY, WINDOW_SECONDS, Temperatures
 
 
@@ -118,5 +120,24 @@ def test_a_full_ring_still_replaces_within_the_second() -> None:
     temps.feed("p", status, status)
     ring = temps._printers["p"]["extruder"]
     assert ring.count == CAPACITY
-    assert ring.temperature[ring.last] == -1.0
-    assert ring.times[ring.last] == clock.now
+    assert ring.at(ring.last) == (clock.now, -1.0, 0.0)
+
+
+def test_a_ring_holds_what_it_was_fed_in_tenths_and_grows_only_to_capacity() -> None:
+    clock = Clock(1_700_000_000.123)
+    temps = Temperatures(clock)
+    status = {"extruder": heater(215.04, 215)}
+    temps.feed("p", status, status)
+    ring = temps._printers["p"]["extruder"]
+    # A printer that reported once holds one sample, not the half hour's ring.
+    assert len(ring.times) == len(ring.temperature) == len(ring.target) == 1
+    clock.now += 1.26
+    status = {"extruder": heater(1e6, -1e6)}  # a broken thermistor: clamped, not an error
+    temps.feed("p", status, status)
+    assert ring.at(0) == (1_700_000_000.123, 215.0, 215.0)
+    assert ring.at(1) == (pytest.approx(1_700_000_001.423), 3276.7, -3276.7)
+    for step in range(2, CAPACITY * 2):
+        clock.now = 1_700_000_000.123 + step
+        temps.feed("p", status, status)
+    assert len(ring.times) == len(ring.temperature) == len(ring.target) == CAPACITY
+    assert ring.times.itemsize + ring.temperature.itemsize + ring.target.itemsize == 8

@@ -8,8 +8,11 @@ sends nothing: a sample holds until the next one. A reader therefore gets the he
 repeated at "now", so a graph reaches the present; when the printer goes offline (or Klippy
 stops) a gap ends the series (``None`` in JSON) and nothing is held across it.
 
-Memory is fixed per heater: a ring of :data:`CAPACITY` samples, the time as float64 and the
-values as float32 (about 30 KB a heater, 60 KB a printer).
+Memory grows with the history and stops at a ring of :data:`CAPACITY` samples per heater,
+8 bytes a sample: the time in tenths of a second since the heater's first sample, and both
+values in tenths of a degree, the precision Klipper's ``M105`` and every dashboard show
+(15 KB a heater, 30 KB a printer once it has reported for half an hour; a printer that never
+came online holds nothing).
 """
 
 from __future__ import annotations
@@ -27,19 +30,27 @@ STEP_SECONDS: Final = 1.0
 CAPACITY: Final = WINDOW_SECONDS + 64
 """One sample a second for the window, plus room for the gaps of a flapping connection."""
 
+GAP: Final = -32768
+"""The stored value of "no value": where a series ends (offline, Klippy not ready)."""
+
 Series = dict[str, list[Any]]
 """``{"t": [epoch s], "temperature": [°C or None], "target": [°C or None]}``."""
 
 
 class _Ring:
-    """One heater's samples, oldest first, in fixed arrays (no object per sample)."""
+    """One heater's samples, oldest first, in compact arrays (no object per sample) that grow
+    until they hold :data:`CAPACITY` samples, then wrap."""
 
-    __slots__ = ("count", "last", "second", "start", "target", "temperature", "times")
+    __slots__ = ("count", "last", "origin", "second", "start", "target", "temperature", "times")
 
-    def __init__(self) -> None:
-        self.times = array("d", bytes(8 * CAPACITY))
-        self.temperature = array("f", bytes(4 * CAPACITY))
-        self.target = array("f", bytes(4 * CAPACITY))
+    def __init__(self, origin: float) -> None:
+        self.origin = origin
+        """The time of the first sample: ``times`` counts tenths of a second from it (signed:
+        a clock set back gives negative counts, not an error)."""
+        self.times = array("i")
+        self.temperature = array("h")
+        self.target = array("h")
+        """Tenths of a degree; :data:`GAP` for no value."""
         self.start = 0
         self.count = 0
         self.last = 0
@@ -47,31 +58,43 @@ class _Ring:
         self.second = math.nan
         """``STEP_SECONDS`` step of the newest sample (NaN, equal to nothing, when empty)."""
 
-    def _last(self) -> int:
-        return self.last
-
     def put(self, at: float, temperature: float, target: float) -> None:
         """Record a sample; within the second of the last one it replaces that one."""
         second = at // STEP_SECONDS
+        tenths = round((at - self.origin) * 10)
+        temperature_, target_ = _tenths(temperature), _tenths(target)
         # Three updates in four land in the second of the one before: only overwrite.
         if second == self.second:
             last = self.last
             self.times[last], self.temperature[last], self.target[last] = (
-                at, temperature, target,
+                tenths, temperature_, target_,
             )  # fmt: skip
             return
-        if self.count == CAPACITY:
+        if self.count < CAPACITY:
+            index = self.count
+            self.times.append(tenths)
+            self.temperature.append(temperature_)
+            self.target.append(target_)
+            self.count += 1
+        else:
             index = self.start
             self.start = (self.start + 1) % CAPACITY
-        else:
-            index = (self.start + self.count) % CAPACITY
-            self.count += 1
-        self.times[index], self.temperature[index], self.target[index] = at, temperature, target
+            self.times[index], self.temperature[index], self.target[index] = (
+                tenths, temperature_, target_,
+            )  # fmt: skip
         self.last, self.second = index, second
+
+    def at(self, index: int) -> tuple[float, float | None, float | None]:
+        """The sample at ``index``: its time (epoch s), temperature and target (None: a gap)."""
+        return (
+            self.origin + self.times[index] / 10,
+            _degrees(self.temperature[index]),
+            _degrees(self.target[index]),
+        )
 
     def gap(self, at: float) -> None:
         """End the series here: what follows is not a continuation of what came before."""
-        if self.count and not math.isnan(self.temperature[self._last()]):
+        if self.count and self.temperature[self.last] != GAP:
             self.put(at, math.nan, math.nan)
 
     def since(self, first: float, now: float) -> Series:
@@ -80,13 +103,12 @@ class _Ring:
         temps: list[float | None] = []
         targets: list[float | None] = []
         for i in range(self.count):
-            index = (self.start + i) % CAPACITY
-            at = self.times[index]
+            at, temperature, target = self.at((self.start + i) % CAPACITY)
             if at < first:
                 continue
-            t.append(round(at, 3))
-            temps.append(_value(self.temperature[index]))
-            targets.append(_value(self.target[index]))
+            t.append(round(at, 1))
+            temps.append(temperature)
+            targets.append(target)
         if t and temps[-1] is not None and now - t[-1] >= STEP_SECONDS:
             t.append(round(now, 3))
             temps.append(temps[-1])
@@ -94,13 +116,21 @@ class _Ring:
         return {"t": t, "temperature": temps, "target": targets}
 
 
+def _tenths(degrees: float) -> int:
+    """A value as stored: tenths of a degree, :data:`GAP` for NaN, clamped to the array's
+    range (a broken thermistor may read anything)."""
+    if math.isnan(degrees):
+        return GAP
+    return max(-32767, min(32767, round(degrees * 10)))
+
+
+def _degrees(stored: int) -> float | None:
+    return None if stored == GAP else stored / 10
+
+
 def _number(value: Any) -> bool:
     """An int or float (a bool is neither, whatever Python says)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def _value(stored: float) -> float | None:
-    return None if math.isnan(stored) else round(stored, 2)
 
 
 class Temperatures:
@@ -135,7 +165,7 @@ class Temperatures:
                     rings = self._printers[printer_id] = {}
             ring = rings.get(heater)
             if ring is None:
-                ring = rings[heater] = _Ring()
+                ring = rings[heater] = _Ring(now)
             ring.put(now, float(temperature), float(target))
 
     def gap(self, printer_id: str) -> None:
