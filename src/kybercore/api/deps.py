@@ -1,5 +1,9 @@
 """What the routers share: the fleet service, the job queue, the role each route needs,
 and the JSON response class.
+
+The dependencies that read the app's state are coroutines: FastAPI runs a plain function
+in its thread pool, a round trip through a thread (and, on a busy event loop, several of
+its turns) per request for an attribute read.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ OPERATOR: Final = require("operator")
 ADMIN: Final = require("admin")
 
 
-def fleet_service(connection: HTTPConnection) -> FleetService:
+async def fleet_service(connection: HTTPConnection) -> FleetService:
     """The app's FleetService, started by the lifespan (HTTP requests and WebSockets)."""
     service: FleetService = connection.app.state.service
     return service
@@ -33,7 +37,7 @@ Service = Annotated[FleetService, Depends(fleet_service)]
 """A route parameter that receives the app's FleetService."""
 
 
-def queue_service(connection: HTTPConnection) -> QueueService:
+async def queue_service(connection: HTTPConnection) -> QueueService:
     """The app's QueueService, started by the lifespan."""
     queue: QueueService = started(connection, "queue", "The job queue")
     return queue
@@ -47,7 +51,7 @@ Operator = Annotated[Identity, OPERATOR]
 did what)."""
 
 
-def database(connection: HTTPConnection) -> AsyncEngine:
+async def database(connection: HTTPConnection) -> AsyncEngine:
     """The app's database (the queue's and the ledger's; on NATS, the one every front and
     worker shares), opened by the lifespan."""
     engine: AsyncEngine = connection.app.state.engine

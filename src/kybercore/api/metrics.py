@@ -20,7 +20,7 @@ from kybercore.ledger.metrics import Source, exposition
 router = APIRouter()
 
 
-def metrics_source(connection: HTTPConnection) -> Source:
+async def metrics_source(connection: HTTPConnection) -> Source:
     """The app's source of the metrics, started by the lifespan."""
     source: Source = started(connection, "metrics", "The fleet's metrics")
     return source

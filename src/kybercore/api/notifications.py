@@ -50,7 +50,7 @@ TEST_WAIT = 10.0
 SECRET_BYTES = 32
 
 
-def notify_service(connection: HTTPConnection) -> NotifyService:
+async def notify_service(connection: HTTPConnection) -> NotifyService:
     """The app's NotifyService, started by the lifespan."""
     service: NotifyService = started(connection, "notify", "Notifications")
     return service
