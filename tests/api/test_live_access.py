@@ -14,9 +14,16 @@ import pytest
 import websockets
 from websockets.asyncio.client import ClientConnection
 
-from kybercore.api.auth import COOKIE, SESSION_SECONDS, BrowserSessions, TokenStore, tokens_path_for
+from kybercore.api.auth import (
+    COOKIE,
+    SERVER_RECHECK_SECONDS,
+    SESSION_SECONDS,
+    BrowserSessions,
+    TokenStore,
+    tokens_path_for,
+)
 from tests.api.conftest import StartEdge
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -127,3 +134,21 @@ def test_token_file_changes_are_seen_even_within_one_mtime_tick(tmp_path: Path) 
     # A coarse-clock filesystem (or a copy that keeps times) shows the same mtime.
     os.utime(path, ns=(stamp, stamp))
     assert reader.identify(token) is None
+
+
+async def test_the_servers_store_looks_at_the_file_at_most_every_recheck(tmp_path: Path) -> None:
+    # The server identifies requests on its event loop: its store reads no file between
+    # looks, and still sees another shell's revocation within the recheck interval.
+    path, moved = tmp_path / "tokens.json", tmp_path / "moved.json"
+    writer = TokenStore(path)
+    record, token = writer.create("fay", "viewer")
+    held = TokenStore(path, recheck=3600)
+    assert held.identify(token) is not None
+    path.rename(moved)  # a look at the file now would find no token
+    assert held.identify(token) is not None
+    moved.rename(path)
+    server = TokenStore(path, recheck=SERVER_RECHECK_SECONDS)
+    assert server.identify(token) is not None
+    writer.revoke(record.id)
+    took = await wait_for(lambda: server.identify(token) is None, what="the revocation seen")
+    assert took < 5 * SERVER_RECHECK_SECONDS

@@ -40,6 +40,10 @@ TOKEN_PREFIX: Final = "kc_"  # noqa: S105 -- a prefix that makes tokens recognis
 COOKIE: Final = "kybercore_session"
 SESSION_SECONDS: Final = 12 * 3600
 """How long a browser login lasts; then the page asks for the token again."""
+SERVER_RECHECK_SECONDS: Final = 0.5
+"""How stale the server's copy of tokens.json may be: a token created or revoked from
+another shell counts within this. In exchange requests look at the file at most twice a
+second, so identifying one needs no file access and can run on the event loop."""
 
 
 @dataclass(frozen=True)
@@ -81,17 +85,26 @@ def hash_token(token: str) -> str:
 class TokenStore:
     """tokens.json: create, list, revoke and check tokens (atomic, locked writes)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, recheck: float = 0.0) -> None:
+        """``recheck``: seconds for which the last look at the file stands (the server's
+        :data:`SERVER_RECHECK_SECONDS`; 0, for the CLI, looks every time)."""
         self.path = path
         self._lock = filelock.FileLock(path.with_name(path.name + ".lock"), timeout=10)
         self._cache: tuple[Signature, list[TokenRecord]] | None = None
+        self._recheck = recheck
+        self._checked = 0.0
 
     def records(self) -> list[TokenRecord]:
-        """Every stored token (re-read when the file changed: one stat otherwise)."""
+        """Every stored token (re-read when the file changed: one stat otherwise, none
+        within ``recheck`` seconds of the last)."""
+        now = time.monotonic()
+        if self._cache is not None and now - self._checked < self._recheck:
+            return list(self._cache[1])
         signature = file_signature(self.path)
+        self._checked = now
         if signature is None:
-            return []
-        if self._cache is None or self._cache[0] != signature:
+            self._cache = (None, [])
+        elif self._cache is None or self._cache[0] != signature:
             self._cache = (signature, self._read())
         return list(self._cache[1])
 

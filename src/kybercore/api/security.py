@@ -108,7 +108,11 @@ NOT_LOGGED_IN: Final = (
 def require(role: Role) -> Any:
     """A FastAPI dependency: the caller's identity, which must hold at least ``role``."""
 
-    def check(request: Request) -> Identity:
+    # A coroutine: a plain function would run in FastAPI's thread pool, and that round
+    # trip through a thread was the tail of every read on a busy event loop (fleet view
+    # p95/p99 24/32 ms against 15/17 ms at N = 1,000). Identifying reads memory only: the
+    # server's TokenStore looks at tokens.json at most every SERVER_RECHECK_SECONDS.
+    async def check(request: Request) -> Identity:
         access: Access = request.app.state.access
         identity = access.identify(request.headers, request.cookies)
         if identity is None:

@@ -207,10 +207,10 @@ def _open_registry(path: Path) -> PrinterRegistry:
 def _access(printers_file: Path, host: str) -> Access:
     """Open on loopback without tokens (until the first one is created); tokens otherwise;
     refuse what would be unsafe."""
-    from kybercore.api.auth import TokenStore, access_mode, tokens_path_for
+    from kybercore.api.auth import SERVER_RECHECK_SECONDS, TokenStore, access_mode, tokens_path_for
     from kybercore.api.security import Access
 
-    store = TokenStore(tokens_path_for(printers_file))
+    store = TokenStore(tokens_path_for(printers_file), recheck=SERVER_RECHECK_SECONDS)
     mode = access_mode(_is_loopback(host), store)
     if mode == "open":
         console.print(
