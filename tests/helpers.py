@@ -11,9 +11,9 @@ import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import httpx
+import nats.aio.client
 
 
 async def wait_for(
@@ -31,7 +31,7 @@ async def wait_for(
     return time.monotonic() - start
 
 
-async def subscribed(nc: Any) -> None:
+async def subscribed(nc: nats.aio.client.Client) -> None:
     """Return once the server holds every subscription ``nc`` made so far, so that another
     connection's message finds them (else: "no responders").
 

@@ -39,7 +39,7 @@ def patch_subject(slot: int | str, site: str = DEFAULT_SITE) -> str:
 
 
 def slot_of_subject(subject: str) -> SlotRef:
-    """The site and slot a :func:`patch_subject` names."""
+    """The site and slot a :func:`patch_subject` or :func:`snapshot_subject` names."""
     _kc, _s, site, slot, _patch = subject.split(".")
     return SlotRef(site_of_token(site), int(slot))
 

@@ -56,6 +56,7 @@ from kybercore.scale.wire import (
     console_subject,
     dumps,
     patch_subject,
+    slot_of_subject,
     snapshot_subject,
 )
 
@@ -289,7 +290,7 @@ class Worker:
                 log.debug("%s: publish to %s failed: %s", self.worker_id, subject, exc)
 
     async def _on_snapshot_request(self, msg: Msg) -> None:
-        slot = int(msg.subject.split(".")[3])
+        slot = slot_of_subject(msg.subject).slot
         epoch = self.leases.epoch(slot)
         if epoch is None or slot not in self._owned:
             await msg.respond(dumps({"moving": True}))
