@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import pytest
-
 from kybercore.fleet.temperatures import CAPACITY, WINDOW_SECONDS, Temperatures
 
 
@@ -72,7 +70,7 @@ def test_only_the_window_asked_for_and_never_more_than_capacity() -> None:
     assert len(full["t"]) == WINDOW_SECONDS + 1  # the window's samples, inclusive
     assert full["t"][0] == clock.now - WINDOW_SECONDS
     assert len(temps.series("p", minutes=2)["extruder"]["t"]) == 121
-    assert temps._printers["p"]["extruder"].count == CAPACITY
+    assert len(temps._printers["p"]["extruder"].temperature) == CAPACITY
 
 
 def test_deltas_without_heaters_and_removed_printers_leave_nothing() -> None:
@@ -118,26 +116,60 @@ def test_a_full_ring_still_replaces_within_the_second() -> None:
     clock.now += 0.5
     status = {"extruder": heater(-1.0)}
     temps.feed("p", status, status)
-    ring = temps._printers["p"]["extruder"]
-    assert ring.count == CAPACITY
-    assert ring.at(ring.last) == (clock.now, -1.0, 0.0)
+    series = temps.series("p")["extruder"]
+    assert series["temperature"][-1] == -1.0
+    assert series["temperature"][-2] == float(CAPACITY + 1)
+    assert series["t"][-1] == 1_000_000.0 + CAPACITY + 2
 
 
-def test_a_ring_holds_what_it_was_fed_in_tenths_and_grows_only_to_capacity() -> None:
-    clock = Clock(1_700_000_000.123)
+def test_values_in_tenths_clamped_and_nothing_held_for_a_printer_never_heard() -> None:
+    clock = Clock(1_700_000_000.5)
     temps = Temperatures(clock)
+    temps.gap("p")  # offline from the start
+    assert temps._printers == {}
     status = {"extruder": heater(215.04, 215)}
     temps.feed("p", status, status)
-    ring = temps._printers["p"]["extruder"]
-    # A printer that reported once holds one sample, not the half hour's ring.
-    assert len(ring.times) == len(ring.temperature) == len(ring.target) == 1
-    clock.now += 1.26
+    clock.now += 1
     status = {"extruder": heater(1e6, -1e6)}  # a broken thermistor: clamped, not an error
     temps.feed("p", status, status)
-    assert ring.at(0) == (1_700_000_000.123, 215.0, 215.0)
-    assert ring.at(1) == (pytest.approx(1_700_000_001.423), 3276.7, -3276.7)
-    for step in range(2, CAPACITY * 2):
-        clock.now = 1_700_000_000.123 + step
+    series = temps.series("p")["extruder"]
+    assert series["t"] == [1_700_000_000.0, 1_700_000_001.0]
+    assert series["temperature"] == [215.0, 3276.7]
+    assert series["target"] == [215.0, -3276.6]
+    ring = temps._printers["p"]["extruder"]
+    assert ring.temperature.itemsize + ring.target.itemsize == 4  # bytes a second
+
+
+def test_a_silent_stretch_shows_no_samples_from_before_it_as_recent() -> None:
+    # Slots are seconds modulo the capacity: the ones skipped over must not keep old values.
+    clock = Clock()
+    temps = Temperatures(clock)
+    for step in range(CAPACITY):
+        clock.now = 1_000_000.0 + step
+        status = {"extruder": heater(float(step % 100))}
         temps.feed("p", status, status)
-    assert len(ring.times) == len(ring.temperature) == len(ring.target) == CAPACITY
-    assert ring.times.itemsize + ring.temperature.itemsize + ring.target.itemsize == 8
+    for silence in (600, CAPACITY - 1, 3 * CAPACITY):
+        clock.now += silence
+        status = {"extruder": heater(42.0)}
+        temps.feed("p", status, status)
+        series = temps.series("p")["extruder"]
+        assert all(t >= clock.now - WINDOW_SECONDS for t in series["t"])
+        assert series["t"][-1] == clock.now
+        recent = [t for t in series["t"] if t > clock.now - silence]
+        assert recent == [clock.now]
+
+
+def test_a_clock_set_back_keeps_what_it_can() -> None:
+    clock = Clock()
+    temps = Temperatures(clock)
+    for step in (0, 1, 2):
+        clock.now = 1_000_000.0 + step
+        status = {"extruder": heater(20.0 + step)}
+        temps.feed("p", status, status)
+    clock.now = 1_000_001.0  # set back a second: that second's value is replaced
+    status = {"extruder": heater(30.0)}
+    temps.feed("p", status, status)
+    clock.now = 1_000_000.0 - 2 * CAPACITY  # further back than the window: ignored
+    temps.feed("p", status, status)
+    clock.now = 1_000_002.0
+    assert temps.series("p")["extruder"]["temperature"] == [20.0, 30.0, 22.0]

@@ -8,11 +8,10 @@ sends nothing: a sample holds until the next one. A reader therefore gets the he
 repeated at "now", so a graph reaches the present; when the printer goes offline (or Klippy
 stops) a gap ends the series (``None`` in JSON) and nothing is held across it.
 
-Memory grows with the history and stops at a ring of :data:`CAPACITY` samples per heater,
-8 bytes a sample: the time in tenths of a second since the heater's first sample, and both
-values in tenths of a degree, the precision Klipper's ``M105`` and every dashboard show
-(15 KB a heater, 30 KB a printer once it has reported for half an hour; a printer that never
-came online holds nothing).
+Memory: a heater that reported keeps one slot per second of the window, the second's
+number modulo :data:`CAPACITY` (so no time is stored), with both values in tenths of a
+degree, the precision Klipper's ``M105`` and every dashboard show: 4 bytes a second, 7 KB a
+heater, 14 KB a printer; a printer that never came online holds nothing.
 """
 
 from __future__ import annotations
@@ -27,88 +26,91 @@ HEATERS: Final = ("extruder", "heater_bed")
 """The heaters the sessions subscribe to (:mod:`kybercore.moonraker.client`)."""
 WINDOW_SECONDS: Final = 30 * 60
 STEP_SECONDS: Final = 1.0
-CAPACITY: Final = WINDOW_SECONDS + 64
-"""One sample a second for the window, plus room for the gaps of a flapping connection."""
+CAPACITY: Final = WINDOW_SECONDS + 1
+"""Slots a heater keeps: one a second for the window, both ends included."""
 
 GAP: Final = -32768
 """The stored value of "no value": where a series ends (offline, Klippy not ready)."""
+EMPTY: Final = -32767
+"""The stored value of a second in which nothing came (the value held from before)."""
 
 Series = dict[str, list[Any]]
 """``{"t": [epoch s], "temperature": [°C or None], "target": [°C or None]}``."""
 
 
 class _Ring:
-    """One heater's samples, oldest first, in compact arrays (no object per sample) that grow
-    until they hold :data:`CAPACITY` samples, then wrap."""
+    """One heater's last :data:`CAPACITY` seconds: second ``n``'s latest values in slot
+    ``n % CAPACITY`` of two fixed arrays (no object per sample, no time stored).
 
-    __slots__ = ("count", "last", "origin", "second", "start", "target", "temperature", "times")
+    The newest second's values are held as floats and stored only once a later second
+    begins (or a reader asks): three updates in four land in the second of the one
+    before, and each then costs two assignments."""
 
-    def __init__(self, origin: float) -> None:
-        self.origin = origin
-        """The time of the first sample: ``times`` counts tenths of a second from it (signed:
-        a clock set back gives negative counts, not an error)."""
-        self.times = array("i")
-        self.temperature = array("h")
-        self.target = array("h")
-        """Tenths of a degree; :data:`GAP` for no value."""
-        self.start = 0
-        self.count = 0
-        self.last = 0
-        """Index of the newest sample (when ``count``)."""
-        self.second = math.nan
-        """``STEP_SECONDS`` step of the newest sample (NaN, equal to nothing, when empty)."""
+    __slots__ = ("held", "newest", "target", "temperature")
 
-    def put(self, at: float, temperature: float, target: float) -> None:
-        """Record a sample; within the second of the last one it replaces that one."""
-        second = at // STEP_SECONDS
-        tenths = round((at - self.origin) * 10)
-        temperature_, target_ = _tenths(temperature), _tenths(target)
-        # Three updates in four land in the second of the one before: only overwrite.
-        if second == self.second:
-            last = self.last
-            self.times[last], self.temperature[last], self.target[last] = (
-                tenths, temperature_, target_,
-            )  # fmt: skip
-            return
-        if self.count < CAPACITY:
-            index = self.count
-            self.times.append(tenths)
-            self.temperature.append(temperature_)
-            self.target.append(target_)
-            self.count += 1
-        else:
-            index = self.start
-            self.start = (self.start + 1) % CAPACITY
-            self.times[index], self.temperature[index], self.target[index] = (
-                tenths, temperature_, target_,
-            )  # fmt: skip
-        self.last, self.second = index, second
+    def __init__(self) -> None:
+        self.temperature = array("h", [EMPTY]) * CAPACITY
+        self.target = array("h", [EMPTY]) * CAPACITY
+        """Tenths of a degree; :data:`GAP` for no value, :data:`EMPTY` for no sample."""
+        self.newest: int | None = None
+        """The second of the newest sample."""
+        self.held = (math.nan, math.nan)
+        """The newest second's temperature and target, not stored yet."""
 
-    def at(self, index: int) -> tuple[float, float | None, float | None]:
-        """The sample at ``index``: its time (epoch s), temperature and target (None: a gap)."""
-        return (
-            self.origin + self.times[index] / 10,
-            _degrees(self.temperature[index]),
-            _degrees(self.target[index]),
-        )
+    def put(self, second: int, temperature: float, target: float) -> None:
+        """Record a sample of ``second``; within the second of the last one it replaces
+        that one."""
+        newest = self.newest
+        if second != newest:
+            if newest is not None:
+                if second < newest:
+                    if second > newest - CAPACITY:  # the clock went back within the window
+                        self._store(second, temperature, target)
+                    return
+                self._store(newest, *self.held)
+                if second > newest + 1:
+                    self._skip(newest, second)
+            self.newest = second
+        self.held = (temperature, target)
 
-    def gap(self, at: float) -> None:
+    def flush(self) -> None:
+        """Store the newest second's values."""
+        if self.newest is not None:
+            self._store(self.newest, *self.held)
+
+    def _store(self, second: int, temperature: float, target: float) -> None:
+        slot = second % CAPACITY
+        self.temperature[slot] = _tenths(temperature)
+        self.target[slot] = _tenths(target)
+
+    def _skip(self, newest: int, second: int) -> None:
+        """Empty the slots of the seconds between ``newest`` and ``second``: they still
+        hold values from a lap of the ring ago."""
+        for skipped in range(max(newest + 1, second - CAPACITY), second):
+            self.temperature[skipped % CAPACITY] = EMPTY
+
+    def gap(self, second: int) -> None:
         """End the series here: what follows is not a continuation of what came before."""
-        if self.count and self.temperature[self.last] != GAP:
-            self.put(at, math.nan, math.nan)
+        if self.newest is not None and not math.isnan(self.held[0]):
+            self.put(second, math.nan, math.nan)
 
     def since(self, first: float, now: float) -> Series:
         """The samples from ``first`` on, with the held values repeated at ``now``."""
         t: list[float] = []
         temps: list[float | None] = []
         targets: list[float | None] = []
-        for i in range(self.count):
-            at, temperature, target = self.at((self.start + i) % CAPACITY)
-            if at < first:
-                continue
-            t.append(round(at, 1))
-            temps.append(temperature)
-            targets.append(target)
+        self.flush()
+        newest = self.newest
+        if newest is not None:
+            start = max(newest - CAPACITY + 1, math.ceil(first / STEP_SECONDS))
+            for second in range(start, newest + 1):
+                slot = second % CAPACITY
+                temperature = self.temperature[slot]
+                if temperature == EMPTY:
+                    continue
+                t.append(second * STEP_SECONDS)
+                temps.append(_degrees(temperature))
+                targets.append(_degrees(self.target[slot]))
         if t and temps[-1] is not None and now - t[-1] >= STEP_SECONDS:
             t.append(round(now, 3))
             temps.append(temps[-1])
@@ -117,11 +119,13 @@ class _Ring:
 
 
 def _tenths(degrees: float) -> int:
-    """A value as stored: tenths of a degree, :data:`GAP` for NaN, clamped to the array's
-    range (a broken thermistor may read anything)."""
+    """A value as stored: tenths of a degree, :data:`GAP` for NaN, clamped to the range
+    left by the two marks (a broken thermistor may read anything)."""
+    if -3276.6 <= degrees <= 3276.7:  # NaN is not
+        return round(degrees * 10)
     if math.isnan(degrees):
         return GAP
-    return max(-32767, min(32767, round(degrees * 10)))
+    return EMPTY + 1 if degrees < 0 else 32767
 
 
 def _degrees(stored: int) -> float | None:
@@ -145,7 +149,7 @@ class Temperatures:
         printer's merged ``status``. Called for every status update: cheap when no heater
         is in it, and cheap when one is (exact type checks first: decoded JSON is floats)."""
         rings: dict[str, _Ring] | None = None
-        now = 0.0
+        second = 0
         for heater in HEATERS:
             if heater not in changed:
                 continue
@@ -159,20 +163,23 @@ class Temperatures:
             if type(target) is not float and not _number(target):
                 target = 0.0
             if rings is None:
-                now = self._clock()
+                second = self._second()
                 rings = self._printers.get(printer_id)
                 if rings is None:
                     rings = self._printers[printer_id] = {}
             ring = rings.get(heater)
             if ring is None:
-                ring = rings[heater] = _Ring(now)
-            ring.put(now, float(temperature), float(target))
+                ring = rings[heater] = _Ring()
+            ring.put(second, float(temperature), float(target))
 
     def gap(self, printer_id: str) -> None:
         """The printer stopped reporting (offline, Klippy not ready): hold nothing across."""
-        now = self._clock()
+        second = self._second()
         for ring in self._printers.get(printer_id, {}).values():
-            ring.gap(now)
+            ring.gap(second)
+
+    def _second(self) -> int:
+        return int(self._clock() // STEP_SECONDS)
 
     def forget(self, printer_id: str) -> None:
         """Drop a removed printer's history."""
