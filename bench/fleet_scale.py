@@ -44,7 +44,6 @@ from bench.cluster import kybercore_cluster
 from bench.fleet_reader import FleetReader, ReadFailed
 
 # kybercore ships no py.typed marker; mypy sees it as an untyped installed package.
-from kybercore.fleet.temperatures import CAPACITY, HEATERS  # type: ignore[import-untyped, unused-ignore]
 from kybercore.registry.models import PrinterConfig  # type: ignore[import-untyped, unused-ignore]
 from kybercore.registry.store import write_printers  # type: ignore[import-untyped, unused-ignore]
 
@@ -285,11 +284,6 @@ async def _bulk_pause(http: httpx.AsyncClient, ids: list[str]) -> dict[str, Any]
     }
 
 
-HISTORY_KIB: Final = len(HEATERS) * CAPACITY * 8 / 1024
-"""A printer's heater history once full (:mod:`kybercore.fleet.temperatures`: 8 bytes a
-sample)."""
-
-
 async def run(
     printers: int,
     clients: int,
@@ -408,12 +402,6 @@ def _figures(
         "fleet_view_ms": measured["fleet_view_ms"],
         "rss_kib": measured["rss_kib"],
         "rss_kib_per_printer": round((measured["rss_kib"] - idle_rss) / len(ids), 1),
-        # The heater history grows for half an hour before its rings are full; a window of
-        # seconds holds a few samples. What a printer holds later, counted as if all were
-        # still to come (an upper bound by the ~1 KB the window's samples already take).
-        "rss_kib_per_printer_full_history": round(
-            (measured["rss_kib"] - idle_rss) / len(ids) + HISTORY_KIB, 1
-        ),
         "cpu_seconds": round(measured["cpu_seconds"], 2),
         # Cores in use, and CPU per update: ingest is a rate, so both use the CPU's window.
         "cpu_cores": round(measured["cpu_seconds"] / measured["cpu_window"], 2),
