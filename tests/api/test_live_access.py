@@ -32,6 +32,8 @@ pytestmark = pytest.mark.integration
 # a half: the interval at which the server checks them, plus how stale its copy of
 # tokens.json may be. 7.5 s is 5x that, for a busy 2-core machine.
 REVOKED_SOCKET_CLOSES_WITHIN = 5 * (ACCESS_CHECK_SECONDS + SERVER_RECHECK_SECONDS)
+REVOCATION_SEEN_WITHIN = 5 * SERVER_RECHECK_SECONDS
+"""Product promise (README): another shell's revocation counts within half a second."""
 
 
 async def _closed_within(ws: ClientConnection, seconds: float) -> float:
@@ -151,5 +153,6 @@ async def test_the_servers_store_looks_at_the_file_at_most_every_recheck(tmp_pat
     server = TokenStore(path, recheck=SERVER_RECHECK_SECONDS)
     assert server.identify(token) is not None
     writer.revoke(record.id)
-    took = await wait_for(lambda: server.identify(token) is None, what="the revocation seen")
-    assert took < 5 * SERVER_RECHECK_SECONDS
+    await wait_for(
+        lambda: server.identify(token) is None, REVOCATION_SEEN_WITHIN, "the revocation seen"
+    )

@@ -67,7 +67,7 @@ class _Ring:
                     if second > newest - CAPACITY:  # the clock went back within the window
                         self._store(second, temperature, target)
                     return
-                self._store(newest, *self.held)
+                self.flush()
                 if second > newest + 1:
                     self._skip(newest, second)
             self.newest = second
