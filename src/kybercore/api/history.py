@@ -75,26 +75,27 @@ class StatsAnswer(BaseModel):
     rows: list[StatsRow]
 
 
-class Filters:
-    """The filters ``/api/history`` and ``/api/history.csv`` share."""
+async def history_filter(
+    printer: Annotated[str | None, Query(max_length=64)] = None,
+    status: Annotated[str | None, Query(max_length=32)] = None,
+    file: Annotated[str | None, Query(max_length=255, description="part of the name")] = None,
+    user: Annotated[str | None, Query(max_length=100)] = None,
+    start: Annotated[datetime | None, Query(alias="from")] = None,
+    end: Annotated[datetime | None, Query(alias="to")] = None,
+) -> records.HistoryFilter:
+    """The filters ``/api/history`` and ``/api/history.csv`` share. A coroutine: FastAPI
+    runs a class or plain-function dependency in its thread pool."""
+    return records.HistoryFilter(
+        printer=printer,
+        status=status,
+        file=file,
+        user=user,
+        start=None if start is None else stats.epoch(start),
+        end=None if end is None else stats.epoch(end),
+    )
 
-    def __init__(
-        self,
-        printer: Annotated[str | None, Query(max_length=64)] = None,
-        status: Annotated[str | None, Query(max_length=32)] = None,
-        file: Annotated[str | None, Query(max_length=255, description="part of the name")] = None,
-        user: Annotated[str | None, Query(max_length=100)] = None,
-        start: Annotated[datetime | None, Query(alias="from")] = None,
-        end: Annotated[datetime | None, Query(alias="to")] = None,
-    ) -> None:
-        self.where = records.HistoryFilter(
-            printer=printer,
-            status=status,
-            file=file,
-            user=user,
-            start=None if start is None else stats.epoch(start),
-            end=None if end is None else stats.epoch(end),
-        )
+
+Filters = Annotated[records.HistoryFilter, Depends(history_filter)]
 
 
 @router.get(
@@ -102,13 +103,13 @@ class Filters:
 )
 async def history(
     database: Database,
-    filters: Annotated[Filters, Depends()],
+    where: Filters,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> dict[str, Any]:
     """Jobs every printer ran, newest first, filtered by printer, status, file, user and
     start time (``from`` inclusive, ``to`` exclusive)."""
-    total, items = await records.page(database, filters.where, limit, offset)
+    total, items = await records.page(database, where, limit, offset)
     return {"total": total, "items": items}
 
 
@@ -118,15 +119,13 @@ async def history(
     response_class=StreamingResponse,
     dependencies=[VIEWER],
 )
-async def history_csv(
-    database: Database, filters: Annotated[Filters, Depends()]
-) -> StreamingResponse:
+async def history_csv(database: Database, where: Filters) -> StreamingResponse:
     """Every matching job as CSV, one row per job, with a header row."""
 
     async def lines() -> AsyncIterator[str]:
         yield records.csv_text([], header=True)
         batch: list[dict[str, Any]] = []
-        async for row in records.every_row(database, filters.where):
+        async for row in records.every_row(database, where):
             batch.append(row)
             if len(batch) == records.CSV_BATCH:
                 yield records.csv_text(batch)
