@@ -94,9 +94,9 @@ async def test_removed_and_re_sessioned_printers_are_freed_by_reference_count(
 async def test_a_thousand_add_edit_remove_cycles_keep_memory_flat(
     fleet: FleetService, caplog: pytest.LogCaptureFixture
 ) -> None:
-    # pytest keeps every log record of a test for its report. At INFO (left set by an
-    # earlier test in the same session) a cycle's "Moonraker offline" lines are ~3 KB of
-    # pytest's memory, not KyberCore's: once 3.96 MB over the 1,000 cycles, a failure.
+    # pytest keeps every log record of a test for its report. At INFO (``--log-level``, or
+    # a logger left at INFO) a cycle's "Moonraker offline" lines are ~3 KB of pytest's
+    # memory, not KyberCore's: 2.9 MB over the 1,000 cycles, a failure.
     for logger in (None, "kybercore"):
         caplog.set_level(logging.WARNING, logger=logger)
 
