@@ -52,6 +52,22 @@ def test_a_delta_updates_only_the_fields_it_names() -> None:
     }
 
 
+def test_a_merge_makes_new_dicts_only_on_the_deltas_paths() -> None:
+    # A front merges every patch of the fleet: copying what a patch does not touch was
+    # most of its cost. Sharing is safe because views and patches are never changed.
+    snapshot = {
+        "job": {"state": "printing", "info": {"current_layer": 3}},
+        "bed": {"temperature": 60.0},
+    }
+    delta = {"job": {"state": "paused"}, "extruder": {"temperature": 20.0}}
+    merged = merge_status(snapshot, delta)
+    assert merged["job"] == {"state": "paused", "info": {"current_layer": 3}}
+    assert merged["job"] is not snapshot["job"]
+    assert merged["job"]["info"] is snapshot["job"]["info"]
+    assert merged["bed"] is snapshot["bed"]
+    assert snapshot["job"]["state"] == "printing"
+
+
 @given(STATUS, STATUS)
 def test_merging_leaves_its_inputs_untouched_and_wins_field_by_field(
     snapshot: dict[str, Any], delta: dict[str, Any]

@@ -6,7 +6,6 @@ call them with plain dicts.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping
 from typing import Any, Final
 
@@ -25,13 +24,18 @@ _NOTIFICATION_STATES: Final = {
 
 def merge_status(snapshot: Mapping[str, Any], delta: Mapping[str, Any]) -> dict[str, Any]:
     """Return ``snapshot`` deep-merged with ``delta`` (a ``notify_status_update`` delta, or
-    a patch of a fused view); both are left untouched, and what the delta does not name is
-    shared, not copied."""
+    a patch of a fused view); both are left untouched. Only the dicts on the delta's paths
+    are new: what the delta does not name is shared with ``snapshot``, and what it brings
+    is shared with ``delta``, so neither input may be changed in place afterwards (views
+    and patches never are)."""
+    # Copy on write, not a deep copy of each object named: a front merges every patch of
+    # the fleet, and copy.deepcopy made that 8x slower.
     merged = dict(snapshot)
-    for key in delta:
-        if type(merged.get(key)) is dict:
-            merged[key] = copy.deepcopy(merged[key])
-    _merge_into(merged, delta)
+    for key, value in delta.items():
+        old = merged.get(key)
+        merged[key] = (
+            merge_status(old, value) if type(value) is dict and type(old) is dict else value
+        )
     return merged
 
 
