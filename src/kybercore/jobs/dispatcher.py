@@ -37,7 +37,7 @@ from kybercore.errors import ActionRejected, KyberCoreError, PrinterUnreachable
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job
 from kybercore.jobs.printers import Change, QueuePrinter, QueuePrinters
-from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, plan, power_group
+from kybercore.jobs.rules import Memo, Plan, PrinterSnapshot, placeable, plan, power_group
 from kybercore.jobs.store import JobStore
 from kybercore.jobs.tracker import Tracker, seen
 
@@ -92,6 +92,8 @@ class Dispatcher:
         name before the start)."""
         self.memo = Memo()
         """Validation verdicts kept between rounds (the planner's cache)."""
+        self._nothing_queued = False
+        """The last round found no job to place: heater changes need not be followed."""
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -158,6 +160,11 @@ class Dispatcher:
         """One planning round: plan, reserve, start. Returns the plan it followed."""
         now = self._clock()
         jobs = await self._store.jobs()
+        self._nothing_queued = not any(placeable(job) for job in jobs)
+        if self._nothing_queued:
+            # The plan is empty whatever the printers say: skip reading every printer
+            # (a round is woken by any printer's state change, and farms run 5,000).
+            return Plan([])
         gates = await self._store.gates()
         usage = await self._store.usage(self.usage_since())
         paused = await self._store.queue_paused()
@@ -322,6 +329,10 @@ class Dispatcher:
 
     def _heaters_changed(self, printer_id: str) -> None:
         if self.heating_budget is None:
+            return
+        if self._nothing_queued and printer_id not in self._warming:
+            # No round would place a job: skip working out the heat of every temperature
+            # update. A job queued wakes a round, which reads every printer's heat afresh.
             return
         heat = self._printers.heat(printer_id)
         if printer_id in self._warming and heat.target_set:

@@ -73,6 +73,11 @@ def in_order(jobs: Sequence[Job]) -> bool:
     return True
 
 
+def placeable(job: Job) -> bool:
+    """Whether a round may place ``job``: queued, with copies left to print."""
+    return job.state == "queued" and job.left > 0
+
+
 def plan(
     jobs: Sequence[Job],
     printers: Sequence[PrinterSnapshot],
@@ -93,7 +98,7 @@ def plan(
     that job there; used for jobs with failures. ``memo``: keep one between rounds to
     reuse verdicts.
     """
-    queued = [j for j in jobs if j.state == "queued" and j.left > 0]
+    queued = [j for j in jobs if placeable(j)]
     if not in_order(queued):  # the store lists them in order; sorting anyway costs more
         queued.sort(key=job_order)
     if paused:

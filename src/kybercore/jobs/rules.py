@@ -3,7 +3,8 @@
 No asyncio, no database, no I/O, no clock (the caller passes ``now``): the dispatcher feeds
 these functions plain data and acts on what they return, and tests call them the same way.
 
-- :func:`plan`: one dispatch round (:mod:`kybercore.jobs.planner`).
+- :func:`plan`: one dispatch round, :func:`placeable`: a job it may place
+  (:mod:`kybercore.jobs.planner`).
 - :func:`why`, :func:`never_printable`: explanations (:mod:`kybercore.jobs.why`).
 - :func:`is_heating`, :func:`power_group`: the heating budget's inputs
   (:mod:`kybercore.jobs.heating`).
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 from kybercore.jobs.eligibility import IDLE_STATES, Memo, PrinterSnapshot
 from kybercore.jobs.heating import HEATING_MARGIN, is_heating, power_group
-from kybercore.jobs.planner import Assignment, Plan, plan
+from kybercore.jobs.planner import Assignment, Plan, placeable, plan
 from kybercore.jobs.reasons import WhyLine
 from kybercore.jobs.why import never_printable, why
 
@@ -29,6 +30,7 @@ __all__ = [
     "WhyLine",
     "is_heating",
     "never_printable",
+    "placeable",
     "plan",
     "power_group",
     "why",
