@@ -261,20 +261,28 @@ class LedgerService:
                 self._wake.set()
 
     async def _write_live(self) -> None:
-        batch, self._live = self._live, []
-        try:
-            await self._write(batch)
-        except BaseException:
-            self._live[:0] = batch
-            raise
+        """Write the live jobs heard so far. The batch is taken under the lock, so when
+        this returns every job heard before the call is in the table, including a batch
+        the writer task had taken and was still writing."""
+        async with self._writing:
+            batch, self._live = self._live, []
+            try:
+                await self._upsert(batch)
+            except BaseException:
+                self._live[:0] = batch
+                raise
 
     async def _write(self, rows: Sequence[Row]) -> None:
+        async with self._writing:
+            await self._upsert(rows)
+
+    async def _upsert(self, rows: Sequence[Row]) -> None:
+        """Write ``rows`` and refresh their printers' counts; the caller holds the lock."""
         if not rows:
             return
-        async with self._writing:
-            await self.history.upsert(rows)
-            printers = sorted({printer for printer, _, _ in rows})
-            counts = await self.history.counts(printers)
+        await self.history.upsert(rows)
+        printers = sorted({printer for printer, _, _ in rows})
+        counts = await self.history.counts(printers)
         kept = {key: n for key, n in self.job_counts.items() if key[0] not in printers}
         self.job_counts = kept | counts
 
