@@ -94,7 +94,10 @@ async def test_per_printer_totals_equal_moonraker_history_totals(
             for stack in fleet_stacks:
                 theirs = (await moonraker(http, stack, "/server/history/totals"))["job_totals"]
                 row = ours.get(stack.options.name)
-                if row is None:
+                # Every print has ended, so a job still in progress here is one whose end
+                # KyberCore has not heard yet. Moonraker shows a job finished a moment before
+                # it adds it to its totals: both sides can then agree while both still lag.
+                if row is None or row["jobs"].get("in_progress"):
                     return False
                 # Moonraker counts a job in its totals when it finishes; one cut short by a
                 # crash of Moonraker itself is "interrupted" and never counted.
@@ -116,13 +119,16 @@ async def test_per_printer_totals_equal_moonraker_history_totals(
             }
             assert counts["completed"] >= 2
             assert counts["cancelled"] >= 1
-        # The history lists these prints, once each.
-        total, items = await records.page(
-            engine, records.HistoryFilter(file="ledger-"), 500, 0
-        )
-        assert total >= 9
-        keys = [(r["printer"], r["moonraker_job_id"]) for r in items]
-        assert len(keys) == len(set(keys))
+        # The history lists Moonraker's jobs, once each, as Moonraker names them: a loaded
+        # Moonraker may record a print's job before it knows the file (filename "").
+        for stack in fleet_stacks:
+            theirs = (await moonraker(http, stack, "/server/history/list", limit=500))["jobs"]
+            total, items = await records.page(
+                engine, records.HistoryFilter(printer=stack.options.name), 500, 0
+            )
+            ours = [(r["moonraker_job_id"], r["filename"], r["status"]) for r in items]
+            assert total >= 3
+            assert sorted(ours) == sorted((j["job_id"], j["filename"], j["status"]) for j in theirs)
 
 
 COUNTED_NOT = frozenset({"in_progress", "interrupted"})
