@@ -10,7 +10,7 @@ import uuid
 
 import httpx
 import pytest
-from playwright.sync_api import Locator, Page, expect
+from playwright.sync_api import Locator, Page, Route, expect
 
 from tests.helpers import KyberCoreServer, wait_until
 from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
@@ -107,6 +107,38 @@ def test_history_filters_by_printer_and_downloads_the_csv(
     page.locator("#lang").select_option("es")
     expect(view.get_by_role("heading", name="Historial de trabajos")).to_be_visible()
     expect(done.locator(".pill")).to_have_text("Completado")
+
+
+def test_a_job_recorded_without_its_file_says_so(
+    page: Page, kybercore_server: KyberCoreServer
+) -> None:
+    """Moonraker records a job without its file name when it sees the print only end (a
+    short print started while it was still subscribing after a Klippy restart, under
+    load). The row says so instead of leaving the cell empty. The page gets a FAKE answer
+    from /api/history: a real Moonraker does this only by chance, not on demand."""
+    nameless = {
+        "printer": "fleet-a", "moonraker_job_id": "000001", "filename": "", "sha256": None,
+        "job_id": None, "attempt_id": None, "status": "completed", "queued_at": None,
+        "started_at": "2026-11-28T10:00:00Z", "ended_at": "2026-11-28T10:00:05Z",
+        "cleared_at": None, "verdict": None, "cause": None, "print_seconds": 5.0,
+        "filament_mm": 0.0, "filament_g": None, "user": None,
+    }  # fmt: skip
+
+    def fake(route: Route) -> None:
+        route.fulfill(json={"total": 1, "items": [nameless]})
+
+    page.route(re.compile(r"/api/history\?"), fake)
+    open_fleet(page, kybercore_server.url)
+    page.get_by_role("link", name="History").click()
+    file_cell = page.locator("#history-view tbody tr td.c-file")
+    expect(file_cell).to_have_text("—")
+    expect(file_cell).to_have_attribute(
+        "title", "Moonraker recorded this job without its file name"
+    )
+    page.locator("#lang").select_option("es")
+    expect(file_cell).to_have_attribute(
+        "title", "Moonraker registró este trabajo sin el nombre de su archivo"
+    )
 
 
 @pytest.mark.usefixtures("two_jobs")

@@ -177,7 +177,10 @@ function row(item) {
     "tr",
     { dataset: { printer: item.printer, status: item.status } },
     h("td", { class: "c-name" }, name),
-    h("td", { class: "c-file", title: item.filename }, fmt.baseName(item.filename)),
+    // Moonraker may record a job without its file (a print it saw only end): say so.
+    item.filename
+      ? h("td", { class: "c-file", title: item.filename }, fmt.baseName(item.filename))
+      : h("td", { class: "c-file", title: t("history.no_file") }, "—"),
     h("td", {}, h("span", { class: "pill", dataset: { group: GROUP[item.status] || "offline" } }, outcomeText(item.status))),
     h("td", { class: "c-date" }, fmt.dateTime(seconds(item.started_at))),
     h("td", { class: "c-date" }, fmt.dateTime(seconds(item.ended_at))),

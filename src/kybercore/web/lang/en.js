@@ -459,6 +459,7 @@ export default {
   "history.col.filament": "Filament",
   "history.col.verdict": "Plate",
   "history.col.user": "User",
+  "history.no_file": "Moonraker recorded this job without its file name",
   "outcome.completed": "Completed",
   "outcome.cancelled": "Cancelled",
   "outcome.error": "Error",

@@ -459,6 +459,7 @@ export default {
   "history.col.filament": "Filamento",
   "history.col.verdict": "Placa",
   "history.col.user": "Usuario",
+  "history.no_file": "Moonraker registró este trabajo sin el nombre de su archivo",
   "outcome.completed": "Completado",
   "outcome.cancelled": "Cancelado",
   "outcome.error": "Error",
