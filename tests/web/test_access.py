@@ -58,6 +58,7 @@ def test_a_viewer_logs_in_and_can_only_watch(
     expect(page.locator(".tile")).to_have_count(len(FLEET))
     expect(page.locator("#who")).to_contain_text("web-viewer · viewer")
     expect(page.get_by_role("button", name="Add printer")).to_be_hidden()
+    expect(page.get_by_role("link", name="Audit log")).to_be_hidden()  # admins only
 
     card = tile(page, "fleet-a")
     expect(card.locator(".badge.conn")).to_have_text("Online", timeout=20_000)

@@ -101,6 +101,7 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
     "queue": _page("queue"),
     "history": _page("history"),
     "stats": _page("stats"),
+    "audit": _page("audit"),
     "notifications": _page("notifications"),
     "printer-page": _printer_page,
     "cameras": _cameras,

@@ -98,6 +98,7 @@ export const api = {
   history: (query) => request("GET", `/api/history?${queryString(query)}`),
   historyCsvUrl: (query) => `/api/history.csv?${queryString(query)}`,
   stats: (query) => request("GET", `/api/stats?${queryString(query)}`),
+  audit: (query) => request("GET", `/api/audit?${queryString(query)}`),
   // Notifications: channels, a test message, the delivery log, noise control, event kinds.
   notifyChannels: () => request("GET", "/api/notifications/channels"),
   addNotifyChannel: (body) => request("POST", "/api/notifications/channels", body),

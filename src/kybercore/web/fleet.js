@@ -111,9 +111,10 @@ function applySession() {
   setText($("who-name"), session.role ? `${session.name} · ${t(`session.role_${session.role}`)}` : "");
   $("add-printer").hidden = !can("admin");
   $("find-printers").hidden = !can("admin");
+  $("audit-link").hidden = !can("admin");
 }
 
-/** Printers, Queue, History, Statistics, Notifications, Cameras, Spools or one printer's
+/** Printers, Queue, History, Statistics, Audit log, Notifications, Cameras, Spools or one printer's
  * page, from the address (#queue, #printer/<id>...), so any can be bookmarked. */
 function route() {
   const hash = location.hash;

@@ -1,34 +1,29 @@
 // The History view: every job the farm printed, from the ledger (GET /api/history),
 // filtered by printer, outcome, file, user and dates, a page at a time, and the same
 // selection as a CSV file (GET /api/history.csv).
-import { ApiError, api } from "./api.js";
+import { api } from "./api.js";
 import { h, setText } from "./dom.js";
 import * as fmt from "./format.js";
-import { messageOf, t } from "./i18n.js";
+import { t } from "./i18n.js";
+import { LedgerTable, localDay } from "./ledger_table.js";
 import { printers } from "./store.js";
 
-const PAGE = 50;
 const OUTCOMES = ["completed", "cancelled", "error", "klippy_shutdown", "in_progress"];
 // Outcome -> the state colour it borrows (see fleet.css data-group).
 const GROUP = { completed: "ready", cancelled: "paused", error: "error", klippy_shutdown: "error", in_progress: "printing" };
 const COLUMNS = ["printer", "file", "status", "started", "ended", "print", "filament", "verdict", "user"];
 
 let els = null;
-let offset = 0;
-let loaded = false;
-let asked = 0; // answers to older requests are dropped
+let table = null;
 
 /** Build the view into its (empty) section. */
 export function initHistory(root) {
   const filter = (id, control) => {
     control.id = id;
-    control.addEventListener(control.type === "search" ? "input" : "change", () => reload());
+    control.addEventListener(control.type === "search" ? "input" : "change", () => table.reload());
     return control;
   };
   els = {
-    root,
-    title: h("h2", { id: "history-title" }),
-    summary: h("p", { class: "muted", "aria-live": "polite" }),
     csv: h("a", { class: "btn", id: "history-csv", download: "kybercore-history.csv" }),
     printer: filter("history-printer", h("select")),
     status: filter("history-status", h("select")),
@@ -38,48 +33,43 @@ export function initHistory(root) {
     to: filter("history-to", h("input", { type: "date" })),
     fromLabel: h("span"),
     toLabel: h("span"),
-    head: h("tr"),
-    rows: h("tbody"),
-    empty: h("p", { class: "empty", hidden: true }),
-    prev: h("button", { type: "button", class: "btn small", onclick: () => page(-1) }),
-    next: h("button", { type: "button", class: "btn small", onclick: () => page(1) }),
-    pageText: h("span", { class: "muted" }),
   };
-  root.setAttribute("aria-labelledby", "history-title");
-  root.append(
-    h("header", { class: "ledger-head" }, els.title, els.summary, h("span", { class: "toolbar-spacer" }), els.csv),
-    h(
-      "div",
-      { class: "toolbar ledger-filters" },
+  table = new LedgerTable(root, {
+    id: "history",
+    tableClass: "history-table",
+    keys: "history",
+    columns: COLUMNS,
+    actions: [els.csv],
+    filters: [
       els.printer,
       els.status,
       els.file,
       els.user,
       h("label", { class: "date-filter" }, els.fromLabel, els.from),
       h("label", { class: "date-filter" }, els.toLabel, els.to),
-    ),
-    h("div", { class: "table-wrap" }, h("table", { class: "fleet-table ledger-table" }, h("thead", {}, els.head), els.rows)),
-    els.empty,
-    h("nav", { class: "pager" }, els.prev, els.pageText, els.next),
-  );
+    ],
+    fetch: (limit, offset) => {
+      const query = filters();
+      els.csv.href = api.historyCsvUrl(query);
+      return api.history({ ...query, limit, offset });
+    },
+    row,
+  });
   relabelHistory();
 }
 
 /** Show the view: the first time it loads, later it refreshes what it shows. */
 export function showHistory() {
   fillPrinters();
-  load();
+  table.load();
 }
 
 /** Labels in the current language (and the table redrawn in it). */
 export function relabelHistory() {
   if (!els) return;
-  setText(els.title, t("history.title"));
   setText(els.csv, t("history.csv"));
   setText(els.fromLabel, t("history.from"));
   setText(els.toLabel, t("history.to"));
-  setText(els.prev, t("history.prev"));
-  setText(els.next, t("history.next"));
   els.file.placeholder = t("history.file");
   els.user.placeholder = t("history.user");
   for (const [control, key] of [[els.printer, "history.printer"], [els.status, "history.status"], [els.file, "history.file"], [els.user, "history.user"]]) {
@@ -91,9 +81,8 @@ export function relabelHistory() {
     ...OUTCOMES.map((o) => h("option", { value: o }, outcomeText(o))),
   );
   els.status.value = status;
-  els.head.replaceChildren(...COLUMNS.map((c) => h("th", { scope: "col" }, t(`history.col.${c}`))));
   fillPrinters();
-  if (loaded) load();
+  table.relabel();
 }
 
 function fillPrinters() {
@@ -109,63 +98,14 @@ function fillPrinters() {
 
 /** The filters as the API takes them; dates are whole local days. */
 function filters() {
-  const day = (value, plus) => {
-    if (!value) return "";
-    const [y, m, d] = value.split("-").map(Number);
-    return new Date(y, m - 1, d + plus).toISOString();
-  };
   return {
     printer: els.printer.value,
     status: els.status.value,
     file: els.file.value.trim(),
     user: els.user.value.trim(),
-    from: day(els.from.value, 0),
-    to: day(els.to.value, 1),
+    from: localDay(els.from.value, 0),
+    to: localDay(els.to.value, 1),
   };
-}
-
-function reload() {
-  offset = 0;
-  load();
-}
-
-function page(step) {
-  offset = Math.max(0, offset + step * PAGE);
-  load();
-}
-
-async function load() {
-  const query = filters();
-  els.csv.href = api.historyCsvUrl(query);
-  const mine = ++asked;
-  els.root.setAttribute("aria-busy", "true");
-  let answer;
-  try {
-    answer = await api.history({ ...query, limit: PAGE, offset });
-  } catch (error) {
-    if (mine !== asked) return;
-    els.root.removeAttribute("aria-busy");
-    els.rows.replaceChildren();
-    els.empty.hidden = false;
-    setText(els.empty, error instanceof ApiError ? messageOf(error) : t("error.unknown"));
-    return;
-  }
-  if (mine !== asked) return;
-  loaded = true;
-  els.root.removeAttribute("aria-busy");
-  render(answer);
-}
-
-function render({ total, items }) {
-  els.rows.replaceChildren(...items.map(row));
-  els.empty.hidden = items.length > 0;
-  setText(els.empty, t("history.empty"));
-  const first = items.length ? offset + 1 : 0;
-  setText(els.summary, t(total === 1 ? "history.summary_one" : "history.summary", { total }));
-  setText(els.pageText, t("history.page", { first, last: offset + items.length, total }));
-  els.prev.disabled = offset === 0;
-  els.next.disabled = offset + items.length >= total;
-  els.root.dataset.total = String(total);
 }
 
 function row(item) {
