@@ -12,6 +12,7 @@ from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
 from tests.web.support import ARTIFACTS, open_fleet
+from tests.web.test_accessibility import AXE
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 
@@ -57,3 +58,14 @@ def test_the_audit_log_shows_who_did_what_and_how_it_ended(
     page.locator("#lang").select_option("es")
     expect(view.get_by_role("heading", name="Registro de auditoría")).to_be_visible()
     expect(refused_row.locator("td").nth(1)).to_have_text("local · administrador")
+
+    # On a narrow screen the table scrolls sideways: the keyboard must reach it (axe's rule).
+    page.set_viewport_size({"width": 480, "height": 900})
+    wrap = view.locator(".table-wrap")
+    assert wrap.evaluate("el => el.scrollWidth > el.clientWidth"), "the table should scroll here"
+    page.evaluate(AXE.read_text())
+    found = page.evaluate(
+        "async () => (await axe.run('#audit-view', {runOnly: ['scrollable-region-focusable']}))"
+        ".violations.map(v => v.id)"
+    )
+    assert found == []

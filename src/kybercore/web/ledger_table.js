@@ -52,7 +52,12 @@ export class LedgerTable {
     root.append(
       h("header", { class: "ledger-head" }, this.title, this.summary, h("span", { class: "toolbar-spacer" }), spec.actions || []),
       h("div", { class: "toolbar ledger-filters" }, spec.filters),
-      h("div", { class: "table-wrap" }, h("table", { class: `fleet-table ledger-table ${spec.tableClass}` }, h("thead", {}, this.head), this.rows)),
+      // Focusable: a table wider than the screen scrolls, and keyboards must reach it.
+      h(
+        "div",
+        { class: "table-wrap", tabindex: "0", role: "region", "aria-labelledby": `${spec.id}-title` },
+        h("table", { class: `fleet-table ledger-table ${spec.tableClass}` }, h("thead", {}, this.head), this.rows),
+      ),
       this.empty,
       h("nav", { class: "pager" }, this.prev, this.pageText, this.next),
     );
