@@ -16,6 +16,8 @@ FLEET = ("fleet-a", "fleet-b", "fleet-c")
 BUSY = ("printing", "paused")
 SAMPLES = Path(__file__).resolve().parents[2] / "src/kybercore/sim/samples"
 SAMPLE = SAMPLES / "calibration_cube_20mm_pla.gcode"
+# axe-core's script (pinned in package-lock.json, installed by `npm ci`), run in the page.
+AXE = Path(__file__).resolve().parents[2] / "node_modules" / "axe-core" / "axe.min.js"
 
 
 def make_idle(server: KyberCoreServer, api: httpx.Client) -> None:

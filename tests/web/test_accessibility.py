@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, Final
 
 import httpx
@@ -19,11 +18,10 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
-from tests.web.support import open_fleet, start_print, tile
+from tests.web.support import AXE, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 
-AXE: Final = Path(__file__).resolve().parents[2] / "node_modules" / "axe-core" / "axe.min.js"
 TAGS: Final = ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa", "wcag22aa", "best-practice"]
 BLOCKING: Final = ("serious", "critical")
 ALSO_BLOCKING: Final = ("landmark-one-main", "heading-order")

@@ -11,8 +11,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, open_fleet
-from tests.web.test_accessibility import AXE
+from tests.web.support import ARTIFACTS, AXE, open_fleet
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 

@@ -114,8 +114,8 @@ function applySession() {
   $("audit-link").hidden = !can("admin");
 }
 
-/** Printers, Queue, History, Statistics, Audit log, Notifications, Cameras, Spools or one printer's
- * page, from the address (#queue, #printer/<id>...), so any can be bookmarked. */
+/** Printers, Queue, History, Statistics, Audit log, Notifications, Cameras, Spools or one
+ * printer's page, from the address (#queue, #printer/<id>...), so any can be bookmarked. */
 function route() {
   const hash = location.hash;
   const printerId = printerOfHash(hash);

@@ -36,7 +36,6 @@ export function initHistory(root) {
   };
   table = new LedgerTable(root, {
     id: "history",
-    tableClass: "history-table",
     keys: "history",
     columns: COLUMNS,
     actions: [els.csv],

@@ -18,7 +18,7 @@ export function localDay(value, plus) {
 /**
  * @typedef {object} TableSpec
  * @property {string} id the view's prefix: the title is `<id>-title`
- * @property {string} tableClass
+ * @property {string} [tableClass] a class of its own for the table, for the view's CSS
  * @property {Element[]} filters the controls over the table, in order
  * @property {Element[]} [actions] what the title row carries on its right (a download)
  * @property {(limit: number, offset: number) => Promise<{total: number, items: any[]}>} fetch
@@ -56,7 +56,12 @@ export class LedgerTable {
       h(
         "div",
         { class: "table-wrap", tabindex: "0", role: "region", "aria-labelledby": `${spec.id}-title` },
-        h("table", { class: `fleet-table ledger-table ${spec.tableClass}` }, h("thead", {}, this.head), this.rows),
+        h(
+          "table",
+          { class: ["fleet-table ledger-table", spec.tableClass].filter(Boolean).join(" ") },
+          h("thead", {}, this.head),
+          this.rows,
+        ),
       ),
       this.empty,
       h("nav", { class: "pager" }, this.prev, this.pageText, this.next),
@@ -67,8 +72,8 @@ export class LedgerTable {
   relabel() {
     const { keys, columns } = this.spec;
     setText(this.title, t(`${keys}.title`));
-    setText(this.prev, t("history.prev"));
-    setText(this.next, t("history.next"));
+    setText(this.prev, t("ledger.prev"));
+    setText(this.next, t("ledger.next"));
     this.head.replaceChildren(...columns.map((c) => h("th", { scope: "col" }, t(`${keys}.col.${c}`))));
     if (this.loaded) this.load();
   }
@@ -109,7 +114,7 @@ export class LedgerTable {
     setText(this.empty, t(`${keys}.empty`));
     setText(this.summary, t(total === 1 ? `${keys}.summary_one` : `${keys}.summary`, { total }));
     const first = items.length ? this.offset + 1 : 0;
-    setText(this.pageText, t("history.page", { first, last: this.offset + items.length, total }));
+    setText(this.pageText, t("ledger.page", { first, last: this.offset + items.length, total }));
     this.prev.disabled = this.offset === 0;
     this.next.disabled = this.offset + items.length >= total;
     this.root.dataset.total = String(total);
