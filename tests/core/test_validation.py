@@ -646,8 +646,10 @@ def moonraker_metadata(tmp_path_factory: pytest.TempPathFactory) -> dict[str, An
             f"Moonraker's environment is not installed at {MOONRAKER.root}; the integration "
             "tests install it (kybercore.sim.runtime.ensure_runtimes)"
         )
-    folder = tmp_path_factory.mktemp("gcodes")  # the parser writes .thumbs/ next to the file
-    for name in SAMPLE_NAMES:
+    # A folder per file: the parser writes .thumbs/ next to the file, and two parsers
+    # creating the same .thumbs/ at once made one give up on its thumbnails.
+    folders = {name: tmp_path_factory.mktemp("gcodes") for name in SAMPLE_NAMES}
+    for name, folder in folders.items():
         shutil.copy(SAMPLES / name, folder / name)
     procs = {
         name: subprocess.Popen(
@@ -658,7 +660,7 @@ def moonraker_metadata(tmp_path_factory: pytest.TempPathFactory) -> dict[str, An
                 "-f",
                 name,
                 "-p",
-                str(folder),
+                str(folders[name]),
             ],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
