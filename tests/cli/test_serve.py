@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from kybercore import __version__
 from kybercore.cli.main import app
 from kybercore.sim.stack import free_port
 
@@ -46,7 +47,8 @@ def test_serve_refuses_a_port_in_use(tmp_path: Path) -> None:
 def test_version() -> None:
     result = runner.invoke(app, ["version"])
     assert result.exit_code == 0
-    assert result.output.strip()
+    assert result.output.startswith(__version__)
+    assert "compiled hot path: " in result.output  # on or off, and why (kybercore/native.py)
 
 
 def test_serve_names_an_allowed_host_that_is_not_a_host_name(

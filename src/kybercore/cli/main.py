@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import typer
 
-from kybercore import __version__
+from kybercore import __version__, native
 from kybercore.cli import scale as scale_commands
 from kybercore.cli import serve as serve_commands
 from kybercore.cli.jobs import jobs_app
@@ -36,5 +36,7 @@ app.command()(scale_commands.export_printers)
 
 @app.command()
 def version() -> None:
-    """Print KyberCore's version."""
-    console.print(__version__)
+    """Print KyberCore's version, and whether its hot path runs compiled."""
+    state = native.STATE
+    shown = "on" if state.active else "off"
+    console.print(f"{__version__} (compiled hot path: {shown}, {state.reason})")

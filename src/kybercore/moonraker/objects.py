@@ -47,9 +47,12 @@ def apply_status(status: Status, delta: Mapping[str, Mapping[str, Any]]) -> None
     In place because this runs for every update of every printer: copying the printer's
     objects on each one was a tenth of the ingest cost at 20,000 updates/s.
     """
+    # Typed loosely: whatever a peer sent may be there, and compiled (kybercore/native.py)
+    # each value read from a ``Status`` would be checked to be a dict.
+    loose: dict[str, Any] = status
     # The first level by hand: one call per object in the delta was a third of the merge.
     for name, fields in delta.items():
-        objects = status.get(name)
+        objects = loose.get(name)
         if type(fields) is not dict or type(objects) is not dict:
             _merge_into(status, {name: fields})
             continue
