@@ -344,6 +344,7 @@ async def run(
             "workers": workers,
             "show": show,
             "kybercore_src": str(src) if src else "installed",
+            "compiled": procs.compiled(src),
         },
         "host": {
             "cpus": os.cpu_count(),

@@ -235,6 +235,9 @@ async def run(
     return results
 
 
+_COMPILED = {True: "compiled", False: "pure Python"}
+
+
 def show(results: dict[str, Any], console: Console) -> None:
     """The figures as one table."""
     params = results["params"]
@@ -259,7 +262,7 @@ def show(results: dict[str, Any], console: Console) -> None:
     ]
     for window in results["kybercore"]:
         split = f"{window['utime']:.1f} / {window['stime']:.1f}" if window["settled"] else ""
-        label = f"kybercore serve ({window['src']})"
+        label = f"kybercore serve ({window['src']}, {_COMPILED[window['compiled']]})"
         rows.append((label, window.get("events_per_s"), window.get("cpu_per_1000"), split))
     for label, rate, cpu, split in rows:
         table.add_row(
@@ -296,6 +299,9 @@ def main() -> None:
     if args.compare_src is not None:
         trees.append(args.compare_src)
     results = asyncio.run(run(args.printers, args.clients, args.seconds, trees, args.rounds))
+    compiled = {str(src or "installed"): procs.compiled(src) for src in trees}
+    for window in results["kybercore"]:
+        window["compiled"] = compiled[window["src"]]
     show(results, Console())
     args.results_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")

@@ -166,7 +166,10 @@ def main() -> None:
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
-        print(orjson.dumps(asyncio.run(replay(args.printers, args.clients))).decode())
+        result = asyncio.run(replay(args.printers, args.clients))
+        from kybercore import native  # type: ignore[import-untyped, unused-ignore]
+
+        print(orjson.dumps({**result, "compiled": native.STATE.active}).decode())
         return
     trees = [args.kybercore_src, *args.compare_src]
     best: dict[Path, dict[str, Any]] = {}

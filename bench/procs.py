@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import os
 import socket
+import subprocess
 import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -16,6 +17,17 @@ import orjson
 
 _TICKS_PER_SECOND = os.sysconf("SC_CLK_TCK")
 STOP_TIMEOUT = 10.0
+
+
+def compiled(src: Path | None) -> bool:
+    """Whether ``kybercore`` under ``src`` (None: the installed one) runs its hot path
+    compiled (``kybercore/native.py``): a figure means little without it."""
+    env = {**os.environ, "PYTHONPATH": str(src)} if src else None
+    probe = "from kybercore import native; print(native.STATE.active)"
+    done = subprocess.run(
+        [sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120
+    )
+    return done.stdout.strip() == "True"
 
 
 def free_port() -> int:

@@ -157,6 +157,7 @@ def show(results: Mapping[str, Any], console: Console) -> None:
     params = results["params"]
     workers = params.get("workers") or 0
     mode = f"NATS, {workers} workers + 1 front" if workers else "one process (serve)"
+    mode += ", compiled" if params.get("compiled") else ", pure Python"
     show = params.get("show") or 0
     browsers = f"{params['clients']} browsers" + (f" showing {show} each" if show else "")
     table = Table(
