@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from kybercore import native
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -38,6 +40,8 @@ def test_fleet_scale_runs_and_writes_sane_results(tmp_path: Path) -> None:
         "workers": 0,
         "show": 0,
         "kybercore_src": "installed",
+        # The installed kybercore, as this process imported it (kybercore/native.py).
+        "compiled": native.STATE.active,
     }
     assert results["startup_seconds"]["settled"] is not None
     assert results["baseline"]["events"] > 0
