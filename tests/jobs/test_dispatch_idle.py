@@ -2,11 +2,13 @@
 
 Any printer's state change wakes a round, and a farm runs thousands of printers: with no
 job to place, a round must not read every printer, nor a temperature update work out a
-printer's heat (on a front at N = 5,000 the two were a fifth of its CPU).
+printer's heat (on a front at N = 5,000 the two were a fifth of its CPU); with one, a
+storm of changes makes one round per gap, not one per change.
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -87,3 +89,30 @@ async def test_an_empty_queue_reads_no_printer_until_a_job_is_queued(
         assert printers.heats == 1
     finally:
         unlisten()
+
+
+async def test_a_storm_of_printer_changes_makes_one_round_per_gap(
+    store: JobStore, tmp_path: Path
+) -> None:
+    """While a job waits, every state change wakes a round and a round reads every
+    printer: a farm's changes (thousands in a bulk pause) make one round per gap."""
+    printers = CountingPrinters()
+    tracker = Tracker(printers, store, on_ended=lambda: None)
+    gap = 0.2
+    dispatcher = Dispatcher(printers, store, JobFiles(tmp_path), tracker, round_gap=gap)
+    await store.create_job(new_job(), "ana")
+    loop = asyncio.get_running_loop()
+    dispatcher.start()
+    try:
+        started = loop.time()
+        changes = 0
+        while printers.reads < 4:  # a storm long enough for a few gaps
+            printers.tell(f"p{changes % 50}", "state")
+            changes += 1
+            await asyncio.sleep(0)
+        elapsed = loop.time() - started
+    finally:
+        await dispatcher.stop()
+    # Rounds start at least a gap apart, however slow the machine: never more than this.
+    assert printers.reads <= elapsed / gap + 1, (printers.reads, elapsed, changes)
+    assert changes > 10 * printers.reads

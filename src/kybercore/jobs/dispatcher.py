@@ -4,7 +4,8 @@ A planning round runs when something that can change a decision happens: a print
 state, Klippy or connection changed, a printer stopped (or started) heating, its Spoolman
 spool changed (another one set active, or its weight read after a print), a job, a gate
 or the queue changed (:meth:`Dispatcher.wake`), plus a slow tick for ``not_before`` times.
-Nothing is polled fast. A round asks :func:`kybercore.jobs.rules.plan` what to start where,
+Nothing is polled fast, and rounds start at least ``round_gap`` apart: the wakes in between
+make one round. A round asks :func:`kybercore.jobs.rules.plan` what to start where,
 and reserves each assignment in the store (atomic: losing a race to another loop or
 process only means someone else dispatched that copy).
 
@@ -45,6 +46,11 @@ log = logging.getLogger(__name__)
 
 TICK_SECONDS: Final = 30.0
 """The slow tick: ``not_before`` times come due, and a safety check of every print."""
+ROUND_GAP_SECONDS: Final = 0.5
+"""Rounds start at least this far apart. While a job waits, any printer's state change
+wakes a round, and a round reads every printer (~10 ms at 5,000, hundreds when all are
+free): a farm's changes, a few a second and thousands in a bulk pause, would otherwise
+keep planning back to back. Half a second is nothing next to a print's start."""
 RETRY_SECONDS: Final = 5.0
 """After a round failed (the database away), the next one waits this long."""
 USAGE_DAYS: Final = 30
@@ -65,6 +71,7 @@ class Dispatcher:
         heating_budget: int | None = 3,
         start_within: float = 60.0,
         tick: float = TICK_SECONDS,
+        round_gap: float = ROUND_GAP_SECONDS,
         clock: Callable[[], datetime] = lambda: datetime.now(UTC),
     ) -> None:
         self._printers = printers
@@ -74,6 +81,7 @@ class Dispatcher:
         self.heating_budget = heating_budget
         self.start_within = start_within
         self._tick = tick
+        self._round_gap = round_gap
         self._clock = clock
         self._wake = asyncio.Event()
         self._planning = asyncio.Lock()
@@ -131,12 +139,14 @@ class Dispatcher:
     # -- the loop ----------------------------------------------------------------------
 
     async def _loop(self) -> None:
+        loop = asyncio.get_running_loop()
         while True:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), self._tick)
             if not self._wake.is_set():
                 self._tracker.check_all()  # the slow tick: nothing may stay "printing"
             self._wake.clear()
+            started = loop.time()
             try:
                 await self.round()
             except KyberCoreError as exc:
@@ -147,6 +157,7 @@ class Dispatcher:
                 log.exception("queue: planning failed; retrying in %g s", RETRY_SECONDS)
                 await asyncio.sleep(RETRY_SECONDS)
                 self.wake()
+            await asyncio.sleep(started + self._round_gap - loop.time())
 
     def now(self) -> datetime:
         """The time the planner judges ``not_before`` by."""
