@@ -6,6 +6,9 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import pytest
+
+from kybercore.fleet import hub as fleet_hub
 from kybercore.fleet.frames import DeltaFrames, slim
 from kybercore.fleet.hub import QUEUE_FRAMES, Hub, HubClient
 from kybercore.moonraker.objects import merge_status
@@ -136,6 +139,45 @@ def test_a_slow_client_with_a_view_resyncs_with_full_views_of_it_only() -> None:
     assert snapshot["printers"] == [slim(fleet.views["a"]), slim(fleet.views["b"])]
     assert snapshot["full"] == [fleet.views["b"]]
     assert apply({}, snapshot) == {"a": slim(fleet.views["a"]), "b": fleet.views["b"]}
+
+
+def overflow(hub: Hub, client: HubClient) -> dict[str, Any]:
+    """Fill the client's queue as a browser that stopped reading would, so the next frame
+    overflows it; return the snapshot that replaces its backlog."""
+    while not client.queue.full():
+        client.queue.put_nowait(b"{}")
+    hub.event({"type": "tick"})
+    hub.flush()
+    [snapshot] = frames(client)
+    assert snapshot["type"] == "snapshot"
+    return snapshot
+
+
+def test_resent_summaries_follow_every_change_without_deriving_them_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    fleet, hub = fleet_of("a", "b", "c")
+    client = hub.connect()
+    hub.watch(client, ["b"])
+    assert [p["id"] for p in overflow(hub, client)["printers"]] == ["a", "b", "c"]
+    derived = []
+    monkeypatch.setattr(fleet_hub, "slim", lambda view: derived.append(view) or slim(view))
+
+    changes = [
+        ("a", lambda: fleet.views["a"]["job"].update(progress=0.5)),  # in every summary
+        ("c", lambda: fleet.views["c"]["extruder"].update(temperature=99.0)),  # in none
+        ("d", lambda: fleet.views.update(d=printer("d", progress=0.2))),  # a new printer
+        ("b", lambda: fleet.views.pop("b")),  # a printer removed, the one in view
+        ("a", lambda: fleet.views["a"].update(name="Alpha", klippy_state="shutdown")),
+    ]
+    for printer_id, change in changes:
+        change()
+        hub.mark(printer_id)
+        hub.flush()
+        snapshot = overflow(hub, client)
+        assert snapshot["printers"] == [slim(view) for view in fleet.views.values()]
+        assert snapshot["full"] == [fleet.views[i] for i in ["b"] if i in fleet.views]
+    assert derived == []  # kept from the deltas' slim patches, not derived from the views
 
 
 def test_clients_share_encodings_instead_of_one_each() -> None:

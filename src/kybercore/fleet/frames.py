@@ -70,11 +70,19 @@ class DeltaFrames:
             orjson.dumps(removed),
         )
         self._patches = patches
+        self.removed = removed
+        self._summaries: dict[str, dict[str, Any]] | None = None
         self._full: bytes | None = None
         self._slim: bytes | None = None
         self._spliced: dict[frozenset[str], bytes] = {}
         self.encodings = 0
         """How many times patches were encoded (the tests and benches read it)."""
+
+    def summaries(self) -> dict[str, dict[str, Any]]:
+        """The slim patches of the changed printers whose summary changed (made once)."""
+        if self._summaries is None:
+            self._summaries = {i: s for i, patch in self._patches.items() if (s := slim(patch))}
+        return self._summaries
 
     def frame(self, view: frozenset[str] | None) -> bytes:
         """The frame for a client showing ``view`` in full (None: every printer).
@@ -96,8 +104,7 @@ class DeltaFrames:
         frame = self._spliced.get(shown)
         if frame is None:
             if self._slim is None:
-                summaries = {i: s for i, patch in patches.items() if (s := slim(patch))}
-                self._slim = orjson.dumps(summaries)
+                self._slim = orjson.dumps(self.summaries())
                 self.encodings += 1
             full = orjson.dumps({i: patches[i] for i in shown}) if shown else b"{}"
             frame = self._head + self._slim + b',"full":' + full + b"}"

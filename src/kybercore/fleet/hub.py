@@ -87,7 +87,12 @@ class Hub:
         """Every view as one JSON array, until a flush replaces a view."""
         self._snapshot_frame: bytes | None = None
         self._slim_fleet: bytes | None = None
-        """Every view's slim summary as one JSON array, until a flush replaces a view."""
+        """Every printer's slim summary as one JSON array, until the next delta."""
+        self._slims: dict[str, dict[str, Any]] | None = None
+        """Every printer's slim summary as of the last delta, kept from the deltas' slim
+        patches while a client has a view (None otherwise). A browser that falls behind is
+        resent them all, and deriving 5,000 from the views each time was most of a
+        front's work once its browsers overflowed (``bench/README.md``)."""
         self._task: asyncio.Task[None] | None = None
 
     # -- feeding -----------------------------------------------------------------------
@@ -101,7 +106,7 @@ class Hub:
         made elsewhere (a front forwards its workers' patches): no render, no diff. Sent
         with the next tick, as a marked printer's would be."""
         old = self._views.get(printer_id)
-        self._fleet = self._snapshot_frame = self._slim_fleet = None
+        self._fleet = self._snapshot_frame = None
         self._views[printer_id] = view
         if old is None:
             self._removed.discard(printer_id)
@@ -237,7 +242,7 @@ class Hub:
         """Render printers into the views and the patches not sent yet, until the
         ``time.perf_counter()`` value ``until``; return the printers left."""
         if printer_ids:
-            self._fleet = self._snapshot_frame = self._slim_fleet = None
+            self._fleet = self._snapshot_frame = None
         for index, printer_id in enumerate(printer_ids):
             if index and time.perf_counter() > until:
                 return printer_ids[index:]
@@ -274,6 +279,7 @@ class Hub:
             self._seq += 1
             delta = DeltaFrames(self._seq, self._unsent, sorted(self._removed))
             self._unsent, self._removed = {}, set()
+            self._follow_slims(delta)
         events = [_encode(event) for event in self._events]
         self._events.clear()
         for client in list(self._clients.values()):
@@ -284,6 +290,24 @@ class Hub:
             for frame in events:
                 self._offer(client, frame)
 
+    def _follow_slims(self, delta: DeltaFrames) -> None:
+        """Bring the kept slim summaries to ``delta`` (before any client may need a
+        snapshot of its sequence number); stop keeping them once no client has a view."""
+        slims = self._slims
+        if slims is None:
+            return
+        if all(client.view is None for client in self._clients.values()):
+            self._slims = self._slim_fleet = None
+            return
+        # A summary patch sets what it names, so one the summaries already hold (a view
+        # rendered before they were first derived) changes nothing.
+        for printer_id, summary in delta.summaries().items():
+            old = slims.get(printer_id)
+            slims[printer_id] = summary if old is None else merge_status(old, summary)
+        for printer_id in delta.removed:
+            slims.pop(printer_id, None)
+        self._slim_fleet = None
+
     def _snapshot(self, view: frozenset[str] | None = None) -> bytes:
         # Built once for every client that connects or overflows before the views change:
         # at 5,000 printers a snapshot is ~5 MB, and slow clients tend to overflow together.
@@ -291,8 +315,10 @@ class Hub:
             if self._snapshot_frame is None:
                 self._snapshot_frame = snapshot_frame(self._seq, self.fleet_json())
             return self._snapshot_frame
+        if self._slims is None:
+            self._slims = {i: slim(v) for i, v in self._views.items()}
         if self._slim_fleet is None:
-            self._slim_fleet = orjson.dumps([slim(v) for v in self._views.values()])
+            self._slim_fleet = orjson.dumps(list(self._slims.values()))
         full = [self._views[i] for i in view if i in self._views]
         return snapshot_frame(self._seq, self._slim_fleet, full)
 
