@@ -91,28 +91,43 @@ async def test_an_empty_queue_reads_no_printer_until_a_job_is_queued(
         unlisten()
 
 
+class StormyPrinters(CountingPrinters):
+    """Counting printers that change state 50 times whenever a round reads them, as a
+    farm's printers do while a round plans: every change wakes the dispatcher again."""
+
+    def __init__(self, rounds: int) -> None:
+        super().__init__()
+        self.changes = 0
+        self.read_enough = asyncio.Event()
+        self._rounds = rounds
+
+    def all(self) -> list[QueuePrinter]:
+        for printer in range(50):
+            self.tell(f"p{printer}", "state")
+        self.changes += 50
+        if self.reads + 1 >= self._rounds:
+            self.read_enough.set()
+        return super().all()
+
+
 async def test_a_storm_of_printer_changes_makes_one_round_per_gap(
     store: JobStore, tmp_path: Path
 ) -> None:
     """While a job waits, every state change wakes a round and a round reads every
     printer: a farm's changes (thousands in a bulk pause) make one round per gap."""
-    printers = CountingPrinters()
+    printers = StormyPrinters(rounds=4)
     tracker = Tracker(printers, store, on_ended=lambda: None)
     gap = 0.2
     dispatcher = Dispatcher(printers, store, JobFiles(tmp_path), tracker, round_gap=gap)
     await store.create_job(new_job(), "ana")
     loop = asyncio.get_running_loop()
+    started = loop.time()
     dispatcher.start()
     try:
-        started = loop.time()
-        changes = 0
-        while printers.reads < 4:  # a storm long enough for a few gaps
-            printers.tell(f"p{changes % 50}", "state")
-            changes += 1
-            await asyncio.sleep(0)
-        elapsed = loop.time() - started
+        await asyncio.wait_for(printers.read_enough.wait(), 60)
+        elapsed, reads = loop.time() - started, printers.reads
     finally:
         await dispatcher.stop()
     # Rounds start at least a gap apart, however slow the machine: never more than this.
-    assert printers.reads <= elapsed / gap + 1, (printers.reads, elapsed, changes)
-    assert changes > 10 * printers.reads
+    assert reads <= elapsed / gap + 1, (reads, elapsed)
+    assert printers.changes >= 50 * reads
