@@ -46,9 +46,12 @@ async def advised_api(
         ):
 
             async def ready() -> bool:
-                return bool((await api.get("/api/printers/b")).json()["klippy_state"] == "ready")
+                view = (await api.get("/api/printers/b")).json()
+                return bool(view["klippy_state"] == "ready" and view["limits"] == "known")
 
-            await wait_for(ready, what="printer ready")
+            # Limits too: a temperature is checked against them, and on a busy machine their
+            # read can still be under way (``limits_loading``) when Klippy is shown ready.
+            await wait_for(ready, what="printer ready, its limits read")
             yield api, advisor
 
 

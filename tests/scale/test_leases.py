@@ -96,8 +96,9 @@ async def test_workers_started_together_take_their_shares_at_once(
 ) -> None:
     # Each announces itself and waits a round before claiming: neither takes every slot
     # (and every printer's connection) only to hand half back.
-    w1 = await workers("w1")
-    w2 = await workers("w2")  # a few milliseconds later, well within w1's first round
+    # Started concurrently: one after the other, the second's connect and bucket lookups
+    # outlasted the first's round on a busy machine.
+    w1, w2 = await asyncio.gather(workers("w1"), workers("w2"))
     await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
     for w in (w1, w2):
         await w.flush_log()

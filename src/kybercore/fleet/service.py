@@ -225,9 +225,11 @@ class FleetService:
         """What would happen: the rules (with the file's real metadata) and, when one is
         configured, the advisor's warnings. Nothing is sent to the printer."""
         printer = self.sessions.get(printer_id)
-        if action in LIMITED_ACTIONS:
-            await printer.wait_for_limits(LIMITS_WAIT)
         meta = await self._file_meta_for(printer, action, params)
+        if action in LIMITED_ACTIONS:
+            # Last before the facts are taken: a new subscription snapshot arriving during
+            # an await in between would start a new read and leave the limits "loading".
+            await printer.wait_for_limits(LIMITS_WAIT)
         printer_facts = facts(printer.config, printer.live)
         verdict = validate(action, printer_facts, params=params, file_meta=meta, force=force)
         if verdict.blocked or self._advisor is None:
