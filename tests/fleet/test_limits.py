@@ -12,7 +12,8 @@ import pytest
 
 from kybercore.errors import ActionRejected
 from kybercore.fleet.service import FleetService
-from kybercore.registry.models import BuildVolume, Capabilities, PrinterCreate
+from kybercore.fleet.sessions import FleetPrinter
+from kybercore.registry.models import BuildVolume, Capabilities, PrinterConfig, PrinterCreate
 from kybercore.registry.store import PrinterRegistry
 from kybercore.sim.stack import PrinterStack
 from tests.hardening.faulty_moonraker import FaultyMoonraker
@@ -119,3 +120,28 @@ async def test_an_action_right_after_connect_is_judged_against_the_limits(
             ["limits_loading"],  # it did not: refused all the same
         )
         await fleet.remove_printer(pid)
+
+
+async def test_an_action_waits_for_a_read_started_again_before_it_resumed() -> None:
+    # A read finishes (the event set) and, before the waiting action resumes, a new
+    # subscription snapshot starts another (the event cleared, the limits "loading" again):
+    # the action must wait for that read too, not be refused with ``limits_loading``.
+    printer = FleetPrinter(PrinterConfig(id="p", name="P", moonraker_url="http://x"), None)
+    printer.live.connection = "online"
+    waiting = asyncio.create_task(printer.wait_for_limits(RETRIED_WITHIN))
+    await _turns()  # the action is now waiting
+    printer.live.limits = "known"
+    printer.limits_tried.set()
+    printer.live.limits = "loading"
+    printer.limits_tried.clear()
+    await _turns()  # ample for the waiter to resume
+    assert not waiting.done()
+    printer.live.limits = "known"
+    printer.limits_tried.set()
+    await asyncio.wait_for(waiting, RETRIED_WITHIN)
+
+
+async def _turns() -> None:
+    """Let the event loop turn 20 times: a count of turns, not a time."""
+    for _ in range(20):
+        await asyncio.sleep(0)

@@ -102,9 +102,12 @@ class FleetPrinter:
         A printer is online ~300 ms before its configfile arrives; an action checked in
         that window is refused with ``limits_loading`` unless the read comes in time.
         """
-        if self.live.connection == "online" and not self.limits_tried.is_set():
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.limits_tried.wait(), timeout)
+        # A loop, not one wait: a new snapshot may start a new read (and clear the event)
+        # between the event being set and this task resuming.
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(timeout):
+                while self.live.connection == "online" and not self.limits_tried.is_set():
+                    await self.limits_tried.wait()
 
 
 class Sessions:
