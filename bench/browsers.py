@@ -14,6 +14,9 @@ rest. A client counts as ready once a delta carries its ``full`` part (the view 
 effect), and a measuring client observes only those full patches: the slim summaries carry
 no ``print_duration``.
 
+With ``--deflate``, every client offers permessage-deflate as Chromium does (the benches
+otherwise leave it out): KyberCore then compresses each frame once per client.
+
 ``python -m bench.browsers --url ws://127.0.0.1:PORT/ws --clients M --seconds S --out F``
 prints ``{"ready": true, "connected": k}`` once every client has its snapshot (and its view
 is in effect), then, after S
@@ -52,13 +55,18 @@ class Tally:
 
 
 async def measure(
-    url: str, tally: Tally, ready: asyncio.Future[None], view: list[str] | None = None
+    url: str,
+    tally: Tally,
+    ready: asyncio.Future[None],
+    view: list[str] | None = None,
+    deflate: bool = False,
 ) -> None:
     """A measuring browser: snapshot first, then deltas until cancelled. With ``view``, it
     shows those printers: ready, and observing, once a delta carries their full patches."""
     seen: dict[str, list[Any]] = {"printer": [], "value": [], "t": []}
     tally.observations.append(seen)
-    async with websockets.connect(url, compression=None, max_size=None, proxy=None) as ws:
+    compression = "deflate" if deflate else None
+    async with websockets.connect(url, compression=compression, max_size=None, proxy=None) as ws:
         await ws.recv(decode=False)  # the snapshot
         if view is None:
             ready.set_result(None)
@@ -99,20 +107,25 @@ async def run(
     seconds: float,
     connect_timeout: float,
     views: list[list[str]] | None = None,
+    deflate: bool = False,
 ) -> dict[str, Any]:
     """Connect ``clients`` browsers, say so, then listen for ``seconds``. ``views``: the
-    printers each client shows (None: every client gets the whole fleet in full)."""
+    printers each client shows (None: every client gets the whole fleet in full);
+    ``deflate``: the clients offer permessage-deflate."""
     loop = asyncio.get_running_loop()
     tally = Tally()
     measuring = min(clients, MEASURING_CLIENTS)
     ready = [loop.create_future() for _ in range(clients)]
     shown: list[list[str] | None] = list(views) if views is not None else [None] * clients
-    tasks = [asyncio.create_task(measure(url, tally, ready[i], shown[i])) for i in range(measuring)]
+    tasks = [
+        asyncio.create_task(measure(url, tally, ready[i], shown[i], deflate))
+        for i in range(measuring)
+    ]
     parts = urlsplit(url)
     host, port = parts.hostname or "127.0.0.1", parts.port or 80
     drains: list[DrainClient] = []
     for future, view in zip(ready[measuring:], shown[measuring:], strict=True):
-        factory = functools.partial(DrainClient, host, port, future, view)
+        factory = functools.partial(DrainClient, host, port, future, view, deflate)
         _, drain = await loop.create_connection(factory, host, port)
         drains.append(drain)
     done, _ = await asyncio.wait(ready, timeout=connect_timeout)
@@ -147,11 +160,14 @@ def main() -> None:
     parser.add_argument(
         "--views", type=Path, help="JSON list of the printer ids each client shows, in order"
     )
+    parser.add_argument("--deflate", action="store_true", help="offer permessage-deflate")
     args = parser.parse_args()
     views = orjson.loads(args.views.read_bytes()) if args.views else None
     if views is not None and len(views) != args.clients:
         parser.error(f"--views lists {len(views)} views for {args.clients} clients")
-    result = asyncio.run(run(args.url, args.clients, args.seconds, args.connect_timeout, views))
+    result = asyncio.run(
+        run(args.url, args.clients, args.seconds, args.connect_timeout, views, args.deflate)
+    )
     args.out.write_bytes(orjson.dumps(result))
 
 

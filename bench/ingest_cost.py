@@ -20,6 +20,10 @@ and hyperthreads are shared): trees measured side by side bear the same load, so
 ratio holds when the absolute figures do not. The goal (≤ 0.04 CPU s per 1,000 events at
 N = 1,000) is judged on the first tree. Figures go to stdout and to
 ``bench/results/ingest_cost-<N>-<time>.json``.
+
+With ``--deflate``, each tree is also measured, side by side, with browsers that offer
+permessage-deflate as Chromium does: the cost of compressing every frame once per browser,
+which the plain windows leave out.
 """
 
 from __future__ import annotations
@@ -51,6 +55,10 @@ GOAL_CPU_PER_1000: Final = 0.04
 SETTLE_SECONDS: Final = 5.0
 PARSE_FRAMES: Final = 200_000
 TICKS: Final = os.sysconf("SC_CLK_TCK")
+
+Run = tuple[Path | None, bool]
+"""A KyberCore measured: its source tree (None: the installed one), and whether its
+browsers offer permessage-deflate."""
 
 
 def parse_floor(frames: int = PARSE_FRAMES) -> dict[str, float]:
@@ -98,13 +106,15 @@ def _times(pid: int) -> tuple[float, float]:
 
 
 async def _window(
-    pid: int, port: int, printers: int, clients: int, seconds: float, folder: Path
+    pid: int, port: int, printers: int, clients: int, seconds: float, folder: Path, deflate: bool
 ) -> dict[str, Any]:
-    """S seconds of M browsers on ``/ws`` and a fleet read every 250 ms, as in
-    :mod:`bench.fleet_scale`; KyberCore's CPU over exactly that time."""
+    """S seconds of M browsers on ``/ws`` (``deflate``: offering permessage-deflate) and a
+    fleet read every 250 ms, as in :mod:`bench.fleet_scale`; KyberCore's CPU over exactly
+    that time."""
     connect = fleet_scale._limit(printers) + clients
     args = ["-m", "bench.browsers", "--url", f"ws://127.0.0.1:{port}/ws", "--clients"]
     args += [str(clients), "--seconds", str(seconds + 2), "--connect-timeout", str(connect)]
+    args += ["--deflate"] if deflate else []
     async with procs.child(*args, "--out", str(folder / "browsers.json")) as browsers:
         await procs.read_json_line(browsers, connect + 10)
         reader = FleetReader("127.0.0.1", port, fleet_scale.REQUEST_TIMEOUT)
@@ -144,17 +154,17 @@ def _printers_file(folder: Path, ports: list[int]) -> Path:
 
 
 async def _side_by_side(
-    trees: list[Path | None], ports: list[int], clients: int, seconds: float, work: Path
+    runs: list[Run], ports: list[int], clients: int, seconds: float, work: Path
 ) -> list[dict[str, Any]]:
-    """One KyberCore per tree on the same N printers at once: started one after the
-    other, then measured in the same S seconds (each with its own M browsers and fleet
-    reads). The machine's load moves from minute to minute; side by side, every tree
-    bears the same."""
+    """One KyberCore per run (a tree, and whether its browsers deflate) on the same N
+    printers at once: started one after the other, then measured in the same S seconds
+    (each with its own M browsers and fleet reads). The machine's load moves from minute
+    to minute; side by side, every run bears the same."""
     printers = len(ports)
     limit = 6 * fleet_scale._limit(printers)  # a loaded machine starts slowly
     async with contextlib.AsyncExitStack() as stack:
         running = []
-        for index, src in enumerate(trees):
+        for index, (src, _) in enumerate(runs):
             folder = work / f"kc-{time.monotonic_ns()}-{index}"
             folder.mkdir()
             port = procs.free_port()
@@ -164,18 +174,23 @@ async def _side_by_side(
             running.append((src, folder, port, pids["serve"], http))
             # One start-up at a time: 2 x N connections at once is a start-up benchmark.
             if await fleet_scale._wait_for(http, printers, fleet_scale._settled, limit) is None:
-                return [{"src": str(src or "installed"), "settled": False} for src in trees]
+                return [{**_label(run), "settled": False} for run in runs]
         await asyncio.sleep(SETTLE_SECONDS)
         windows = await asyncio.gather(
             *(
-                _window(pid, port, printers, clients, seconds, folder)
-                for _, folder, port, pid, _ in running
+                _window(pid, port, printers, clients, seconds, folder, deflate)
+                for (_, deflate), (_, folder, port, pid, _) in zip(runs, running, strict=True)
             )
         )
     return [
-        {"src": str(src or "installed"), "settled": True, **window}
-        for src, window in zip(trees, windows, strict=True)
+        {**_label(run), "settled": True, **window}
+        for run, window in zip(runs, windows, strict=True)
     ]
+
+
+def _label(run: Run) -> dict[str, Any]:
+    src, deflate = run
+    return {"src": str(src or "installed"), "deflate": deflate}
 
 
 def _figures(window: dict[str, Any], sent_log: dict[str, Any]) -> dict[str, Any]:
@@ -199,12 +214,25 @@ def _figures(window: dict[str, Any], sent_log: dict[str, Any]) -> dict[str, Any]
 
 
 async def run(
-    printers: int, clients: int, seconds: float, trees: list[Path | None], rounds: int
+    printers: int,
+    clients: int,
+    seconds: float,
+    trees: list[Path | None],
+    rounds: int,
+    deflate: bool = False,
 ) -> dict[str, Any]:
-    """The whole run; returns the figures."""
+    """The whole run; returns the figures. ``deflate``: each tree measured with plain and
+    with deflating browsers, side by side."""
+    kinds = (False, True) if deflate else (False,)
+    runs: list[Run] = [(tree, d) for tree in trees for d in kinds]
     load = os.getloadavg()
     results: dict[str, Any] = {
-        "params": {"printers": printers, "clients": clients, "seconds": seconds},
+        "params": {
+            "printers": printers,
+            "clients": clients,
+            "seconds": seconds,
+            "deflate": deflate,
+        },
         "load_average_before": [round(x, 2) for x in load],
         "parse_floor": parse_floor(),
         "kybercore": [],
@@ -218,14 +246,12 @@ async def run(
             results["receive_floor"] = await _receive_floor(ports, seconds, work)
             windows = []
             for _ in range(rounds):
-                windows += await _side_by_side(trees, ports, clients, seconds, work)
+                windows += await _side_by_side(runs, ports, clients, seconds, work)
             await procs.command(loadgen, f"dump {work / 'sent.json'}", limit)
             sent_log = orjson.loads((work / "sent.json").read_bytes())
     results["kybercore"] = [_figures(window, sent_log) for window in windows]
     results["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
-    first = [
-        w["cpu_per_1000"] for w in results["kybercore"][:: len(trees)] if w.get("cpu_per_1000")
-    ]
+    first = [w["cpu_per_1000"] for w in results["kybercore"][:: len(runs)] if w.get("cpu_per_1000")]
     results["goal"] = {
         "applies": printers == GOAL_PRINTERS,
         "limit": GOAL_CPU_PER_1000,
@@ -263,6 +289,7 @@ def show(results: dict[str, Any], console: Console) -> None:
     for window in results["kybercore"]:
         split = f"{window['utime']:.1f} / {window['stime']:.1f}" if window["settled"] else ""
         label = f"kybercore serve ({window['src']}, {_COMPILED[window['compiled']]})"
+        label += ", browsers deflate" if window["deflate"] else ""
         rows.append((label, window.get("events_per_s"), window.get("cpu_per_1000"), split))
     for label, rate, cpu, split in rows:
         table.add_row(
@@ -291,6 +318,9 @@ def main() -> None:
     parser.add_argument(
         "--compare-src", type=Path, help="another src/ (e.g. the code before) measured in turn"
     )
+    parser.add_argument(
+        "--deflate", action="store_true", help="also measure browsers offering permessage-deflate"
+    )
     parser.add_argument("--results-dir", type=Path, default=fleet_scale.RESULTS_DIR)
     args = parser.parse_args()
     if args.printers < 1 or args.clients < 1 or args.seconds <= 0 or args.rounds < 1:
@@ -298,7 +328,9 @@ def main() -> None:
     trees: list[Path | None] = [args.kybercore_src]
     if args.compare_src is not None:
         trees.append(args.compare_src)
-    results = asyncio.run(run(args.printers, args.clients, args.seconds, trees, args.rounds))
+    results = asyncio.run(
+        run(args.printers, args.clients, args.seconds, trees, args.rounds, args.deflate)
+    )
     compiled = {str(src or "installed"): procs.compiled(src) for src in trees}
     for window in results["kybercore"]:
         window["compiled"] = compiled[window["src"]]
