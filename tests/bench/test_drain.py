@@ -7,9 +7,8 @@ import asyncio
 
 import orjson
 import pytest
-from websockets.asyncio.server import ServerConnection, serve
-
 from bench.drain import DrainClient
+from websockets.asyncio.server import ServerConnection, serve
 
 SNAPSHOT = orjson.dumps({"type": "snapshot", "printers": [{"id": "p1", "job": {"x": 1}}]})
 
