@@ -81,3 +81,16 @@ async def test_a_browser_gets_full_views_of_its_tiles_and_summaries_of_the_rest(
         finally:
             for printer in ("fleet-a", "fleet-b"):
                 await api.post(f"/api/printers/{printer}/gcode", json={"script": "M104 S0"})
+
+
+async def test_a_browser_naming_its_view_in_the_url_gets_that_views_snapshot_first(
+    kybercore_server: KyberCoreServer,
+) -> None:
+    # As the dashboard reconnects: its first snapshot is already the view's, not the fleet in
+    # full; an id the fleet does not have is ignored.
+    async with BrowserMirror(f"{kybercore_server.ws_url}?view=fleet-a,nobody") as paged:
+        snapshot = next(f for f in paged.frames if f["type"] == "snapshot")
+    assert [view["id"] for view in snapshot["full"]] == ["fleet-a"]
+    assert "extruder" in snapshot["full"][0]
+    assert {summary["id"] for summary in snapshot["printers"]} >= set(FLEET)
+    assert all("extruder" not in summary for summary in snapshot["printers"])

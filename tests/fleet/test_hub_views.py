@@ -90,6 +90,27 @@ def test_full_patches_in_view_slim_summaries_outside() -> None:
     assert state["b"]["extruder"]["temperature"] == 20.0  # not followed out of view
 
 
+def test_a_client_connecting_with_a_view_gets_that_views_snapshot_first() -> None:
+    fleet, hub = fleet_of("a", "b", "c")
+    client = hub.connect(["b", "gone"])  # an id no longer in the fleet is ignored
+    [snapshot] = frames(client)
+    assert snapshot["printers"] == [slim(fleet.views[p]) for p in "abc"]
+    assert snapshot["full"] == [fleet.views["b"]]
+    hub.watch(client, ["b", "gone"])  # what the page says again once open: nothing new
+    assert frames(client) == []
+    fleet.views["c"]["extruder"]["temperature"] = 30.0
+    fleet.views["b"]["extruder"]["temperature"] = 31.0
+    for p in "bc":
+        hub.mark(p)
+    hub.flush()
+    [delta] = frames(client)
+    assert delta["printers"] == {}
+    assert delta["full"] == {"b": {"extruder": {"temperature": 31.0}}}
+    [none_in_full] = frames(hub.connect([]))
+    assert none_in_full["full"] == []
+    assert none_in_full["printers"] == [slim(fleet.views[p]) for p in "abc"]
+
+
 def test_a_change_outside_the_view_costs_an_empty_delta_only() -> None:
     fleet, hub = fleet_of("a", "b")
     client = hub.connect()

@@ -15,6 +15,8 @@ pytestmark = pytest.mark.browser
 def test_stopping_the_backend_shows_the_banner_and_restarting_clears_it(
     page: Page, kybercore_server: KyberCoreServer, console_errors: ConsoleErrors
 ) -> None:
+    sockets: list[str] = []
+    page.on("websocket", lambda ws: sockets.append(ws.url))
     open_fleet(page, kybercore_server.url)
     page.evaluate("window.__sameDocument = true")
     banner = page.locator("#banner")
@@ -44,3 +46,7 @@ def test_stopping_the_backend_shows_the_banner_and_restarting_clears_it(
         expect(tile(page, printer_id).locator(".badge.conn")).to_have_text("Online", timeout=20_000)
         expect(tile(page, printer_id).locator(".pill")).to_have_text("Ready")
     assert page.evaluate("window.__sameDocument") is True
+    # The first socket asked for every printer in full; the reconnects named the tiles on
+    # screen, so their first snapshot was already the view's.
+    assert sockets[0].endswith("/ws")
+    assert sockets[-1].endswith("/ws?view=" + "%2C".join(sorted(FLEET)))

@@ -37,7 +37,11 @@ async def browser_socket(websocket: WebSocket, service: Service) -> None:
     """Snapshot, then coalesced deltas and events; send ``{"type": "console",
     "printers": [ids]}`` to receive those printers' G-code responses, and ``{"type":
     "view", "printers": [ids]}`` to get full views of those printers only and slim summaries
-    of the others (``"printers": null``: every printer in full, the default)."""
+    of the others (``"printers": null``: every printer in full, the default).
+
+    ``/ws?view=id1,id2`` sets that view from the start (``?view=``: none in full), so the
+    first snapshot is already the view's: a page that knows what it shows (a reconnect,
+    a printer's page) does not download every printer in full first."""
     access: Access = websocket.app.state.access
 
     def allowed() -> bool:
@@ -49,7 +53,7 @@ async def browser_socket(websocket: WebSocket, service: Service) -> None:
         return
     await websocket.accept()
     hub = service.hub
-    client = hub.connect()
+    client = hub.connect(_view(websocket.query_params.get("view")))
     sender = asyncio.create_task(_send(websocket, client))
     receiver = asyncio.create_task(_receive(websocket, hub, client))
     guard = asyncio.create_task(_while_allowed(allowed))
@@ -64,6 +68,13 @@ async def browser_socket(websocket: WebSocket, service: Service) -> None:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
+
+
+def _view(ids: str | None) -> list[str] | None:
+    """The printers a ``?view=`` names (ids never contain commas); None without one."""
+    if ids is None:
+        return None
+    return [i for i in ids.split(",") if i]
 
 
 async def _send(websocket: WebSocket, client: HubClient) -> None:

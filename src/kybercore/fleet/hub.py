@@ -130,11 +130,14 @@ class Hub:
 
     # -- clients -----------------------------------------------------------------------
 
-    def connect(self) -> HubClient:
-        """Register a client; its first frame is a full snapshot."""
+    def connect(self, view: Iterable[str] | None = None) -> HubClient:
+        """Register a client; its first frame is a snapshot: of every printer in full, or,
+        given the ``view`` it shows (see :meth:`watch`), of those in full and slim
+        summaries of the rest (at 5,000 printers, ~1 MB instead of ~6 MB)."""
         self.flush()
         client = HubClient(next(self._ids))
-        client.queue.put_nowait(self._snapshot())
+        client.view = None if view is None else frozenset(view)
+        client.queue.put_nowait(self._snapshot(client.view))
         self._clients[client.id] = client
         return client
 

@@ -6,6 +6,9 @@ import { applyDelta, applySnapshot, applyViews, noteServerTime, resetSequence, s
 
 const BACKOFF = [500, 1000, 2000, 3000, 5000];
 const SILENCE_MS = 25000; // heartbeats come every 10 s when idle
+// A view named in the URL makes the first snapshot the view's; a longer list (a filter of
+// hundreds of printers) is sent once open instead: servers cap the request line at ~8 kB.
+const MAX_VIEW_IN_URL = 4000;
 
 let socket = null;
 let attempt = 0;
@@ -48,6 +51,14 @@ export function reconnectNow() {
   connect();
 }
 
+/** /ws, with the view when it is known and short (a reconnect, mostly). */
+function socketUrl() {
+  const base = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
+  if (viewIds === null) return base;
+  const query = `?view=${encodeURIComponent(viewIds.join(","))}`;
+  return query.length <= MAX_VIEW_IN_URL ? base + query : base;
+}
+
 function send(frame) {
   if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(frame));
 }
@@ -55,8 +66,7 @@ function send(frame) {
 function connect() {
   retryTimer = null;
   handlers.onStatus({ state: "connecting", attempt });
-  const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
-  const ws = new WebSocket(url);
+  const ws = new WebSocket(socketUrl());
   ws.binaryType = "arraybuffer";
   socket = ws;
   ws.addEventListener("open", () => {
