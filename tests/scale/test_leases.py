@@ -17,7 +17,7 @@ from nats.aio.client import Client
 from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
 
 from kybercore.scale import leases as leases_module
-from kybercore.scale.broker import LocalServer, connect
+from kybercore.scale.broker import LocalServer, bucket_keys, connect
 from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases, _wrong_last
 from kybercore.scale.slots import slot_key
 from tests.helpers import wait_for
@@ -122,8 +122,7 @@ async def test_each_site_shares_its_own_slots_among_its_own_workers(
     assert set(b1.owned()) | set(b2.owned()) == set(range(SLOTS))
     nc = await connect(nats_server.url, "reader")
     try:
-        kv = await nc.jetstream().key_value(SLOTS_BUCKET)
-        keys = set(await kv.keys())
+        keys = set(await bucket_keys(nc.jetstream(), SLOTS_BUCKET))
     finally:
         await nc.close()
     assert keys == {slot_key(n) for n in range(SLOTS)} | {f"lab-b.s{n}" for n in range(SLOTS)}
@@ -355,25 +354,25 @@ async def test_a_slot_fenced_during_a_release_does_not_fail_the_round(
 async def test_a_slow_count_of_the_workers_does_not_delay_the_renewals(
     workers: Start, tmp_path: Path
 ) -> None:
-    # Counting the workers takes several round trips (an ephemeral consumer), each a few
-    # turns of a starved loop. Renewed after it in the same round, every lease was fenced.
+    # Counting the workers is a broker round trip, late on a starved loop (it took several
+    # when it was an ephemeral consumer). Renewed after it in the same round, every lease
+    # was fenced.
     w1, w2 = await workers("w1"), await workers("w2")
     await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
     await w1.flush_log()
     log = tmp_path / "w1.log"
     before = drops([log])
-    assert w1._workers is not None
-    count = w1._workers.keys
+    count = w1.live_workers
     renewed = rounds_of(w1, "renew")
 
-    async def slow_count() -> list[str]:
+    async def slow_count() -> int:
         # A FAKE slow broker reply: the count answers only after 4 more renewals, TTL/3
         # apart, so it outlasts the fence (0.8·TTL).
         before = len(renewed)
         await wait_for(lambda: len(renewed) >= before + 4, TAKEOVER_BOUND, "renewals")
         return await count()
 
-    w1._workers.keys = slow_count  # type: ignore[method-assign]
+    w1.live_workers = slow_count  # type: ignore[method-assign]
     ended = rounds_of(w1)
 
     def two_slow_rounds() -> bool:

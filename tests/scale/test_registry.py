@@ -11,7 +11,7 @@ from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.scale.broker import LocalServer, connect
+from kybercore.scale.broker import LocalServer, bucket_keys, connect
 from kybercore.scale.registry import STORED, KvRegistry, fleet_order
 from tests.helpers import wait_for
 
@@ -113,5 +113,26 @@ async def test_api_keys_live_apart_and_only_workers_read_them(nats_server: Local
         await front.remove(added.id)
         with pytest.raises(KeyNotFoundError):
             await front.secrets.get(f"p.{added.id}")
+    finally:
+        await nc.close()
+
+
+async def test_bucket_keys_lists_every_key_under_a_prefix_deleted_ones_too(
+    nats_server: LocalServer,
+) -> None:
+    # What the registry and the leases read instead of nats-py's KeyValue.keys(), which a
+    # busy loop made end early (a front found no printer to edit, in CI).
+    nc = await connect(nats_server.url, "test")
+    try:
+        js = nc.jetstream()
+        kv = await js.create_key_value(bucket="kc_test", history=1)
+        assert await bucket_keys(js, "kc_test") == []
+        for key in ("p.a", "p.b", "p.c", "other.a"):
+            await kv.put(key, b"1")
+        await kv.delete("p.b")
+        assert sorted(await bucket_keys(js, "kc_test", "p.")) == ["p.a", "p.b", "p.c"]
+        assert sorted(await bucket_keys(js, "kc_test")) == ["other.a", "p.a", "p.b", "p.c"]
+        with pytest.raises(KeyNotFoundError):  # the deleted one says so when read
+            await kv.get("p.b")
     finally:
         await nc.close()

@@ -22,6 +22,7 @@ from urllib.parse import urlsplit
 
 import nats
 from nats.aio.client import Client
+from nats.js import JetStreamContext
 from nats.js.api import ObjectStoreConfig
 from nats.js.errors import NotFoundError
 from nats.js.object_store import ObjectStore
@@ -94,6 +95,19 @@ async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
         return await js.object_store(config.bucket)
     except NotFoundError:
         return await js.create_object_store(config.bucket, config)
+
+
+async def bucket_keys(js: JetStreamContext, bucket: str, prefix: str = "") -> list[str]:
+    """The keys of the key-value ``bucket`` that start with ``prefix``, deleted ones
+    included (their delete marker is the key's last message: reading one says so).
+
+    Read from the stream's own count of messages per subject, in one request. nats-py's
+    ``KeyValue.keys()`` watches the bucket instead, and on a busy event loop it can end
+    before its first entry is read: an empty or short list, so a front found no printer to
+    edit and a worker counted fewer workers than there were and claimed too many slots."""
+    head = f"$KV.{bucket}."
+    info = await js.stream_info(f"KV_{bucket}", subjects_filter=f"{head}{prefix}>")
+    return [subject[len(head) :] for subject in info.state.subjects or {}]
 
 
 def server_binary() -> Path:

@@ -44,11 +44,11 @@ from nats.js.errors import (
     BadRequestError,
     KeyNotFoundError,
     KeyWrongLastSequenceError,
-    NoKeysError,
 )
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
+from kybercore.scale.broker import bucket_keys
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
 
@@ -106,6 +106,7 @@ class Leases:
         self._log_path = log_path
         self._on_change = on_change
         self._held: dict[int, Held] = {}
+        self._js = nc.jetstream()
         self._kv: KeyValue | None = None
         self._workers: KeyValue | None = None
         self._task: asyncio.Task[None] | None = None
@@ -119,7 +120,7 @@ class Leases:
     async def start(self) -> None:
         """Open (or create) the buckets and start the renewal loop."""
         self._home = asyncio.get_running_loop()
-        js = self._nc.jetstream()
+        js = self._js
         self._kv = await js.create_key_value(bucket=SLOTS_BUCKET, ttl=self.ttl, history=1)
         self._workers = await js.create_key_value(bucket=WORKERS_BUCKET, ttl=self.ttl, history=1)
         self._task = asyncio.create_task(self._loop(), name=f"leases-{self.worker}")
@@ -207,13 +208,7 @@ class Leases:
         assert self._kv is not None
         assert self._workers is not None
         await self._workers.put(self._heartbeat, b"1")
-        try:
-            keys = await self._workers.keys()
-        except NoKeysError:
-            keys = []
-        site = self._heartbeat.split(".", 1)[0] + "."
-        workers = sum(key.startswith(site) for key in keys)
-        share = fair_share(self.slots, workers)
+        share = fair_share(self.slots, await self.live_workers())
         self.owned()
         for slot in sorted(self._held)[share:]:
             # Let go before the delete is sent: a peer may create the key as soon as the
@@ -224,6 +219,12 @@ class Leases:
             self._drop(slot, "release")
             await self._release(slot, held)
         await self._claim(share)
+
+    async def live_workers(self) -> int:
+        """How many workers of this site have a heartbeat in ``kc_workers`` now.
+        Heartbeats are never deleted, they expire: every key left is a live worker."""
+        site = self._heartbeat.split(".", 1)[0] + "."
+        return len(await bucket_keys(self._js, WORKERS_BUCKET, site))
 
     async def _release(self, slot: int, held: Held) -> None:
         assert self._kv is not None

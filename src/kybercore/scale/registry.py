@@ -28,13 +28,15 @@ from collections.abc import Callable
 from typing import Final
 
 from nats.aio.client import Client
-from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError, NoKeysError
+from nats.js import JetStreamContext
+from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError
 from nats.js.kv import KeyValue
 from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected
 from kybercore.registry import changes
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.scale.broker import bucket_keys
 from kybercore.scale.wire import dumps, loads
 
 log = logging.getLogger(__name__)
@@ -83,13 +85,14 @@ class KvRegistry:
 
     def __init__(self, *, read_keys: bool = False) -> None:
         """``read_keys``: fill in the API keys (workers); else :data:`STORED` (fronts)."""
+        self._js: JetStreamContext | None = None
         self._kv: KeyValue | None = None
         self._secrets: KeyValue | None = None
         self._read_keys = read_keys
 
     async def open(self, nc: Client) -> None:
         """Open (or create) the buckets; file storage, so they outlive a broker restart."""
-        js = nc.jetstream()
+        self._js = js = nc.jetstream()
         self._kv = await js.create_key_value(bucket=BUCKET, history=10)
         self._secrets = await js.create_key_value(bucket=SECRETS, history=1)
 
@@ -133,15 +136,10 @@ class KvRegistry:
 
     async def _entries(self) -> dict[str, tuple[PrinterConfig, int]]:
         """Every printer with its key's revision."""
-        try:
-            keys = await self.kv.keys()
-        except NoKeysError:
-            return {}
+        assert self._js is not None, "open() first"
         found: dict[str, tuple[PrinterConfig, int]] = {}
-        for key in keys:
-            if not key.startswith(PREFIX):
-                continue
-            with contextlib.suppress(KeyNotFoundError):  # deleted between keys() and get()
+        for key in await bucket_keys(self._js, BUCKET, PREFIX):
+            with contextlib.suppress(KeyNotFoundError):  # deleted (before or since)
                 entry = await self.kv.get(key)
                 if entry.value:
                     config = await self._decode(entry.value)
