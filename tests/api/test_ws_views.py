@@ -8,6 +8,7 @@ from typing import Any
 
 import httpx
 import pytest
+import websockets
 
 from tests.browser_mirror import BrowserMirror
 from tests.helpers import KyberCoreServer
@@ -94,3 +95,13 @@ async def test_a_browser_naming_its_view_in_the_url_gets_that_views_snapshot_fir
     assert "extruder" in snapshot["full"][0]
     assert {summary["id"] for summary in snapshot["printers"]} >= set(FLEET)
     assert all("extruder" not in summary for summary in snapshot["printers"])
+
+
+async def test_frames_go_out_uncompressed_to_a_browser_offering_deflate(
+    kybercore_server: KyberCoreServer,
+) -> None:
+    # Every browser offers permessage-deflate; compressing each frame once per browser cost
+    # 13-15 % more CPU per event (bench/ingest_cost.py --deflate). Moonraker does not either.
+    async with websockets.connect(kybercore_server.ws_url, proxy=None) as ws:
+        assert ws.protocol.extensions == []
+        assert b'"type":"snapshot"' in await ws.recv(decode=False)

@@ -193,10 +193,8 @@ def serve_front(
 ) -> None:
     """``kybercore front``'s work, also the distributed demo's (which queues its jobs
     ``on_started``)."""
-    import uvicorn
-
     from kybercore.api.app import create_app
-    from kybercore.cli.serve import _access, _allowed_hosts, _default_database
+    from kybercore.cli.serve import _access, _allowed_hosts, _default_database, run_http
     from kybercore.registry.store import PrinterRegistry
     from kybercore.scale.broker import reachable
     from kybercore.scale.front_queue import Front
@@ -221,7 +219,7 @@ def serve_front(
         on_started=on_started,
         front=Front(nats_url, slots, path, name, lease_ttl),
     )
-    uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets-sansio")
+    run_http(app, host, port)
 
 
 def export_printers(
