@@ -81,7 +81,8 @@ def view(i: int) -> dict[str, Any]:
 
 def connect(page: Page, url: str) -> list[WebSocketRoute]:
     sockets: list[WebSocketRoute] = []
-    page.route_web_socket(re.compile(r"/ws$"), lambda ws: sockets.append(ws))
+    # A reconnect names the page's view: /ws?view=...
+    page.route_web_socket(re.compile(r"/ws(\?.*)?$"), lambda ws: sockets.append(ws))
     page.goto(url)
     wait_for_socket(page, sockets, 1)
     return sockets
