@@ -83,3 +83,17 @@ def test_the_page_asks_for_what_it_shows_and_reads_binary_frames(
     # One printer's page: that printer alone.
     page.evaluate("location.hash = '#printer/p250'")
     next_view(page, asked, lambda ids: ids == {"p250"}, "the printer page's printer alone")
+
+
+def test_a_page_opened_on_one_printer_names_it_when_it_connects(
+    page: Page, kybercore_server: KyberCoreServer, console_errors: ConsoleErrors
+) -> None:
+    # The printer is the test's own: the printer page's REST reads find it not.
+    console_errors.expect(r"404 \(Not Found\) \[.*/api/printers/p250/")
+    sockets = connect(page, kybercore_server.url + "/#printer/p250")
+    # Its first snapshot is that printer in full and summaries of the rest, not the fleet.
+    assert sockets[0].url.endswith("/ws?view=p250")
+    views = [view(i) for i in range(COUNT)]
+    sockets[0].send(json.dumps({"type": "snapshot", "seq": 1, "printers": views}).encode())
+    section = page.locator("#printer-view")
+    expect(section.get_by_role("heading", level=1, name="Farm 250")).to_be_visible()

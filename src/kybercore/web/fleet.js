@@ -25,6 +25,7 @@ import { can, currentSession, loadSession, login, logout, needsLogin, onSessionC
 import { printers, subscribe } from "./store.js";
 import { uploadDialog } from "./uploads.js";
 import { initUtilisation, relabelUtilisation } from "./utilisation.js";
+import { showNow } from "./watch.js";
 
 const $ = byId;
 let lastData = null; // when the last frame changed something (for the banner)
@@ -280,6 +281,7 @@ async function main() {
   await loadSession();
   applySession();
   if (needsLogin()) await login();
+  showNow();
   startLive({ onEvent, onStatus: liveStatusHandler() });
 }
 

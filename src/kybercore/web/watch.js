@@ -25,6 +25,16 @@ export function show(source, ids) {
   timer = setTimeout(send, SETTLE_MS);
 }
 
+/**
+ * Settle the view now rather than after the delay: called before the first connection, so a
+ * page opened on one printer (#printer/<id>) names it and gets its snapshot, not the fleet's
+ * in full.
+ */
+export function showNow() {
+  clearTimeout(timer);
+  send();
+}
+
 function send() {
   // Until the cards have said what is on screen, every printer stays in full: asking for
   // the drawer's and the page's nothing first would turn the tiles on screen into summaries
