@@ -3,13 +3,17 @@ browser showing every printer and one showing a single tile."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
+from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 import websockets
 
+from kybercore.registry.store import write_printers
+from kybercore.sim.stack import free_port
 from tests.browser_mirror import BrowserMirror
 from tests.helpers import KyberCoreServer
 
@@ -105,3 +109,16 @@ async def test_frames_go_out_uncompressed_to_a_browser_offering_deflate(
     async with websockets.connect(kybercore_server.ws_url, proxy=None) as ws:
         assert ws.protocol.extensions == []
         assert b'"type":"snapshot"' in await ws.recv(decode=False)
+
+
+async def test_ws_compress_deflates_frames_for_a_browser_offering_it(tmp_path: Path) -> None:
+    # For a dashboard watched over a slow link: the bytes matter more than the CPU.
+    write_printers(tmp_path / "printers.json", [])
+    server = KyberCoreServer(tmp_path / "printers.json", free_port(), "--ws-compress")
+    try:
+        await asyncio.to_thread(server.start)  # it blocks
+        async with websockets.connect(server.ws_url, proxy=None) as ws:
+            assert [e.name for e in ws.protocol.extensions] == ["permessage-deflate"]
+            assert b'"type":"snapshot"' in await ws.recv(decode=False)
+    finally:
+        await asyncio.to_thread(server.stop)

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, PrintersFile
+from kybercore.cli.options import AllowedHosts, DatabaseUrl, Host, Port, PrintersFile, WsCompress
 from kybercore.cli.output import console, fail
 from kybercore.errors import KyberCoreError
 from kybercore.registry.models import SITE_PATTERN, PrinterConfig
@@ -161,6 +161,7 @@ def front(
             "dispatches the queue; another takes over within about this)."
         ),
     ] = 6.0,
+    ws_compress: WsCompress = False,
     log_level: LogLevel = "info",
 ) -> None:
     """Serve the dashboard, the API and the job queue for a fleet held by ingest workers on
@@ -173,7 +174,7 @@ def front(
         nats_url, host, port, printers_file or default_printers_path(),
         allowed_host=allowed_host or [], database_url=database_url, slots=slots,
         name=front_id or f"{socket.gethostname()}-{os.getpid()}", lease_ttl=lease_ttl,
-        log_level=log_level,
+        log_level=log_level, ws_compress=ws_compress,
     )  # fmt: skip
 
 
@@ -190,6 +191,7 @@ def serve_front(
     lease_ttl: float,
     log_level: str,
     on_started: OnStarted | None = None,
+    ws_compress: bool = False,
 ) -> None:
     """``kybercore front``'s work, also the distributed demo's (which queues its jobs
     ``on_started``)."""
@@ -219,7 +221,7 @@ def serve_front(
         on_started=on_started,
         front=Front(nats_url, slots, path, name, lease_ttl),
     )
-    run_http(app, host, port)
+    run_http(app, host, port, ws_compress)
 
 
 def export_printers(

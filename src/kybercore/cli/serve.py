@@ -27,6 +27,7 @@ from kybercore.cli.options import (
     MdnsInterfaces,
     Port,
     PrintersFile,
+    WsCompress,
 )
 from kybercore.cli.output import console, fail, print_table
 from kybercore.errors import KyberCoreError
@@ -55,6 +56,7 @@ def serve(
     mdns_interface: MdnsInterfaces = None,
     database_url: DatabaseUrl = None,
     heating_budget: HeatingBudget = DEFAULT_HEATING_BUDGET,
+    ws_compress: WsCompress = False,
     advisor_url: Annotated[
         str | None,
         typer.Option(
@@ -104,6 +106,7 @@ def serve(
         database_url=database,
         heating_budget=heating_budget,
         mdns_interfaces=mdns_interface or None,
+        ws_compress=ws_compress,
     )
 
 
@@ -308,6 +311,7 @@ def _run_server(
     heating_budget: int = DEFAULT_HEATING_BUDGET,
     on_started: OnStarted | None = None,
     mdns_interfaces: list[str] | None = None,
+    ws_compress: bool = False,
 ) -> None:
     from kybercore.api.app import create_app
 
@@ -327,16 +331,17 @@ def _run_server(
         on_settled=freeze_heap,
         mdns_interfaces=mdns_interfaces,
     )
-    run_http(app, host, port)
+    run_http(app, host, port, ws_compress)
 
 
-def run_http(app: Any, host: str, port: int) -> None:
+def run_http(app: Any, host: str, port: int, ws_compress: bool = False) -> None:
     """Serve ``app`` (the API, ``/ws`` and the dashboard) until stopped.
 
-    WebSocket frames go out uncompressed, as Moonraker sends them: with permessage-deflate
-    (which every browser asks for) each frame is compressed once per browser. Measured,
-    side by side, at 1,000 printers with 10 browsers: 13-15 % more CPU per event
-    (``bench/ingest_cost.py --deflate``), to save bandwidth a farm's network has."""
+    WebSocket frames go out uncompressed unless ``ws_compress``, as Moonraker sends them:
+    with permessage-deflate (which every browser asks for) each frame is compressed once
+    per browser. Measured, side by side, at 1,000 printers with 10 browsers: 13-15 % more
+    CPU per event (``bench/ingest_cost.py --deflate``), to save bandwidth a farm's network
+    has; a dashboard over a slow link is the exception (``--ws-compress``)."""
     import uvicorn
 
     uvicorn.run(
@@ -345,7 +350,7 @@ def run_http(app: Any, host: str, port: int) -> None:
         port=port,
         log_level="warning",
         ws="websockets-sansio",
-        ws_per_message_deflate=False,
+        ws_per_message_deflate=ws_compress,
     )
 
 
