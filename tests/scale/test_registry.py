@@ -7,6 +7,7 @@ import asyncio
 
 import pytest
 from nats.js.errors import KeyNotFoundError
+from nats.js.kv import KeyValue
 from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
@@ -87,6 +88,100 @@ async def test_an_import_is_told_in_a_few_calls_not_one_per_printer(
         watcher.cancel()
         # Created one by one, ~1 ms apart: a handful of calls (a busy machine may add some).
         assert len(seen) - 1 <= 30, seen
+    finally:
+        await nc.close()
+
+
+class _EarlyEndWatcher:
+    """A fault injector around nats-py's real watcher: it says "no more initial values"
+    (``None``) before delivering any, which nats-py's watch does on a busy event loop and
+    which cannot be made to happen on demand."""
+
+    def __init__(self, real: KeyValue.KeyWatcher) -> None:
+        self._real = real
+        self._ended = False
+
+    async def updates(self, timeout: float) -> KeyValue.Entry | None:
+        if not self._ended:
+            self._ended = True
+            return None
+        return await self._real.updates(timeout=timeout)  # type: ignore[no-untyped-call, no-any-return]
+
+    async def stop(self) -> None:
+        await self._real.stop()  # type: ignore[no-untyped-call]
+
+
+async def test_the_first_list_has_every_printer_even_when_the_watch_ends_its_own_too_soon(
+    nats_server: LocalServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    nc = await connect(nats_server.url, "test")
+    try:
+        registry = KvRegistry()
+        await registry.open(nc)
+        ids = [f"p{i}" for i in range(5)]
+        await registry.import_if_empty(
+            [
+                PrinterConfig(id=i, name=i, moonraker_url=f"http://127.0.0.1:71{n}")
+                for n, i in enumerate(ids)
+            ]
+        )
+        await registry.kv.put("p.broken", b"{half-written")
+        real_watchall = registry.kv.watchall
+
+        async def watchall_ending_early() -> _EarlyEndWatcher:
+            return _EarlyEndWatcher(await real_watchall())
+
+        monkeypatch.setattr(registry.kv, "watchall", watchall_ending_early)
+        seen: list[list[str]] = []
+        watcher = asyncio.create_task(registry.watch(lambda ps: seen.append([p.id for p in ps])))
+        await wait_for(lambda: bool(seen), 10, "the first list")
+        assert seen[0] == ids  # every printer, the broken entry skipped
+        assert [p.id for p in await registry.printers()] == ids
+
+        await registry.remove("p1")
+        await wait_for(lambda: len(seen) > 1, 10, "the removal told")
+        watcher.cancel()
+        # The watch's own copies of what the first list had told nothing twice.
+        assert seen[1:] == [["p0", "p2", "p3", "p4"]]
+    finally:
+        await nc.close()
+
+
+class _DroppingWatcher(_EarlyEndWatcher):
+    """A fault injector: the watch never delivers one key the bucket lists (what a key
+    purged from the stream meanwhile does)."""
+
+    def __init__(self, real: KeyValue.KeyWatcher, dropped: str) -> None:
+        super().__init__(real)
+        self._dropped = dropped
+
+    async def updates(self, timeout: float) -> KeyValue.Entry | None:
+        entry = await super().updates(timeout)
+        while entry is not None and entry.key == self._dropped:
+            entry = await super().updates(timeout)
+        return entry
+
+
+async def test_a_read_missing_a_listed_key_ends_with_the_rest(
+    nats_server: LocalServer, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    nc = await connect(nats_server.url, "test")
+    try:
+        registry = KvRegistry()
+        await registry.open(nc)
+        await registry.import_if_empty(
+            [PrinterConfig(id=i, name=i, moonraker_url=f"http://127.0.0.1:7{n}") for n, i in
+             enumerate(("a", "b", "c"))]
+        )  # fmt: skip
+        real_watchall = registry.kv.watchall
+
+        async def watchall_dropping() -> _DroppingWatcher:
+            return _DroppingWatcher(await real_watchall(), "p.b")
+
+        monkeypatch.setattr(registry.kv, "watchall", watchall_dropping)
+        monkeypatch.setattr("kybercore.scale.registry.READ_WAIT_SECONDS", 0.5)
+        assert [p.id for p in await registry.printers()] == ["a", "c"]
+        assert "registry: read without p.b" in caplog.text
     finally:
         await nc.close()
 

@@ -50,6 +50,8 @@ BATCH_SECONDS: Final = 0.05
 """A change is told once no other has come for this long..."""
 BATCH_MAX_SECONDS: Final = 1.0
 """...or this long after it came, however many follow (a long import shows as it goes)."""
+READ_WAIT_SECONDS: Final = 10.0
+"""Reading the bucket waits this long at most for the next key it listed."""
 _QUIET: Final = object()
 
 OnPrinters = Callable[[list[PrinterConfig]], None]
@@ -135,20 +137,56 @@ class KvRegistry:
         return dumps(data)
 
     async def _entries(self) -> dict[str, tuple[PrinterConfig, int]]:
-        """Every printer with its key's revision."""
+        """Every printer with its key's revision; a broken entry is skipped, logged."""
+        watcher = await self.kv.watchall()
+        try:
+            return await self._read(watcher)
+        finally:
+            await _stop(watcher)
+
+    async def _read(self, watcher: KeyValue.KeyWatcher) -> dict[str, tuple[PrinterConfig, int]]:
+        """Every printer, from a watch of the bucket just started (the last value of each
+        key, then every change), with its key's revision.
+
+        nats-py's watch marks the end of its first values (``None``) too soon on a busy
+        event loop: before it has delivered them. So the end is known from the bucket's
+        own list of keys instead, read after the watch began: once the watch has delivered
+        each of them, the read is whole (a later change comes after it, as a change). One
+        watch, not one read per key: 0.4 s for 5,000 printers instead of 2.6 s."""
         assert self._js is not None, "open() first"
+        missing = set(await bucket_keys(self._js, BUCKET, PREFIX))
         found: dict[str, tuple[PrinterConfig, int]] = {}
-        for key in await bucket_keys(self._js, BUCKET, PREFIX):
-            with contextlib.suppress(KeyNotFoundError):  # deleted (before or since)
-                entry = await self.kv.get(key)
-                if entry.value:
-                    config = await self._decode(entry.value)
-                    found[config.id] = (config, entry.revision or 0)
+        while missing:
+            try:
+                entry = await watcher.updates(timeout=READ_WAIT_SECONDS)  # type: ignore[no-untyped-call]
+            except TimeoutError:
+                # Only a key removed from the stream meanwhile (a purge) is never delivered.
+                log.warning("registry: read without %s (gone meanwhile?)", ", ".join(missing))
+                break
+            if entry is not None and entry.key.startswith(PREFIX):
+                missing.discard(entry.key)
+                await self._apply(found, entry)
         return found
+
+    async def _apply(
+        self, found: dict[str, tuple[PrinterConfig, int]], entry: KeyValue.Entry
+    ) -> bool:
+        """Apply one entry of a watch to ``found``; whether it changed anything. A broken
+        entry is skipped, logged."""
+        printer_id = entry.key[len(PREFIX) :]
+        if entry.operation in ("DEL", "PURGE") or not entry.value:
+            return found.pop(printer_id, None) is not None
+        try:
+            config = await self._decode(entry.value)
+        except ValueError as exc:
+            log.warning("registry: printer %s skipped: %s", printer_id, exc)
+            return False
+        found[printer_id] = (config, entry.revision or 0)
+        return True
 
     async def printers(self) -> list[PrinterConfig]:
         """Every printer, in fleet order."""
-        return fleet_order([config for config, _ in (await self._entries()).values()])
+        return _configs(await self._entries())
 
     async def add(self, new: PrinterCreate) -> PrinterConfig:
         """Add a printer (the rules of printers.json); a clash with a concurrent add is a
@@ -164,7 +202,7 @@ class KvRegistry:
     async def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
         """Edit a printer: compare-and-set on the revision it was read at."""
         entries = await self._entries()
-        printers = fleet_order([config for config, _ in entries.values()])
+        printers = _configs(entries)
         updated = changes.update_printer(printers, printer_id, patch)
         try:
             value = await self._store_key(updated, changed="api_key" in patch.model_fields_set)
@@ -201,12 +239,12 @@ class KvRegistry:
         Changes that come together (an import, a bulk edit) make one call: every call
         re-applies the whole fleet, so one per entry of a 2,000-printer import blocked a
         worker's event loop for minutes and its leases expired."""
-        current: dict[str, PrinterConfig] = {}
         watcher = await self.kv.watchall()
-        initial_done = False
-        due: float | None = None  # when the changes held since the last call must be told
-        loop = asyncio.get_running_loop()
         try:
+            current = await self._read(watcher)
+            on_change(_configs(current))
+            due: float | None = None  # when the changes held since the last call must be told
+            loop = asyncio.get_running_loop()
             while True:
                 wait = 3600.0 if due is None else min(BATCH_SECONDS, max(due - loop.time(), 0))
                 try:
@@ -215,27 +253,20 @@ class KvRegistry:
                     entry = _QUIET
                 if due is not None and (entry is _QUIET or loop.time() >= due):
                     due = None
-                    on_change(fleet_order(list(current.values())))
-                if entry is _QUIET:
+                    on_change(_configs(current))
+                if entry is _QUIET or entry is None or not entry.key.startswith(PREFIX):
                     continue
-                if entry is None:  # the end of the initial values
-                    initial_done = True
-                    on_change(fleet_order(list(current.values())))
-                    continue
-                if not entry.key.startswith(PREFIX):
-                    continue
-                printer_id = entry.key[len(PREFIX) :]
-                if entry.operation in ("DEL", "PURGE") or not entry.value:
-                    current.pop(printer_id, None)
-                else:
-                    try:
-                        current[printer_id] = await self._decode(entry.value)
-                    except ValueError as exc:
-                        log.warning("registry: printer %s skipped: %s", printer_id, exc)
-                        continue
-                if initial_done and due is None:
+                if await self._apply(current, entry) and due is None:
                     due = loop.time() + BATCH_MAX_SECONDS
         finally:
-            with contextlib.suppress(Exception):
-                await watcher.stop()  # type: ignore[no-untyped-call]
-            await asyncio.sleep(0)
+            await _stop(watcher)
+
+
+def _configs(entries: dict[str, tuple[PrinterConfig, int]]) -> list[PrinterConfig]:
+    return fleet_order([config for config, _ in entries.values()])
+
+
+async def _stop(watcher: KeyValue.KeyWatcher) -> None:
+    with contextlib.suppress(Exception):
+        await watcher.stop()  # type: ignore[no-untyped-call]
+    await asyncio.sleep(0)
