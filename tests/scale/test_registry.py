@@ -181,7 +181,7 @@ async def test_a_read_missing_a_listed_key_ends_with_the_rest(
         monkeypatch.setattr(registry.kv, "watchall", watchall_dropping)
         monkeypatch.setattr("kybercore.scale.registry.READ_WAIT_SECONDS", 0.5)
         assert [p.id for p in await registry.printers()] == ["a", "c"]
-        assert "registry: read without p.b" in caplog.text
+        assert "registry: read without 1 listed key(s): p.b" in caplog.text
     finally:
         await nc.close()
 

@@ -161,7 +161,8 @@ class KvRegistry:
                 entry = await watcher.updates(timeout=READ_WAIT_SECONDS)  # type: ignore[no-untyped-call]
             except TimeoutError:
                 # Only a key removed from the stream meanwhile (a purge) is never delivered.
-                log.warning("registry: read without %s (gone meanwhile?)", ", ".join(missing))
+                named = ", ".join(sorted(missing)[:5])
+                log.warning("registry: read without %d listed key(s): %s", len(missing), named)
                 break
             if entry is not None and entry.key.startswith(PREFIX):
                 missing.discard(entry.key)
