@@ -54,6 +54,19 @@ async def test_add_edit_remove_and_a_conflicting_edit(nats_server: LocalServer) 
         assert conflict.value.code == "conflict"
         assert (await registry.printers())[0].name == "Renamed"
 
+        # A removal reads only its printer's key: one read before an edit loses too.
+        stale_entry = await other.kv.get("p.p-2")
+        await registry.update("p-2", PrinterUpdate(name="Renamed again"))
+
+        async def get_stale(key: str) -> KeyValue.Entry:
+            return stale_entry
+
+        other.kv.get = get_stale  # type: ignore[method-assign,assignment]
+        with pytest.raises(ActionRejected) as conflict:
+            await other.remove("p-2")
+        assert conflict.value.code == "conflict"
+        assert (await registry.printers())[0].name == "Renamed again"
+
         await registry.remove(added.id)
         with pytest.raises(UnknownPrinter):
             await registry.remove(added.id)

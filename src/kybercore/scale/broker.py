@@ -24,7 +24,7 @@ import nats
 from nats.aio.client import Client
 from nats.js import JetStreamContext
 from nats.js.api import ObjectStoreConfig
-from nats.js.errors import NotFoundError
+from nats.js.errors import BadRequestError, KeyWrongLastSequenceError, NotFoundError
 from nats.js.object_store import ObjectStore
 
 from kybercore.errors import LaunchError
@@ -32,6 +32,8 @@ from kybercore.errors import LaunchError
 PING_SECONDS: Final = 2.0
 """A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
 ERROR_EVERY: Final = 10.0
+WRONG_REVISION: Final = (10071, 10164)
+"""JetStream's error codes for a compare-and-set on a revision that is not the key's."""
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +97,15 @@ async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
         return await js.object_store(config.bucket)
     except NotFoundError:
         return await js.create_object_store(config.bucket, config)
+
+
+def wrong_revision(exc: Exception) -> bool:
+    """A compare-and-set on a key whose revision moved on (someone else wrote it). nats-py
+    raises that from ``update`` as KeyWrongLastSequenceError, from ``delete`` as a bare
+    BadRequestError."""
+    return isinstance(exc, KeyWrongLastSequenceError) or (
+        isinstance(exc, BadRequestError) and exc.err_code in WRONG_REVISION
+    )
 
 
 async def bucket_keys(js: JetStreamContext, bucket: str, prefix: str = "") -> list[str]:

@@ -48,7 +48,7 @@ from nats.js.errors import (
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
-from kybercore.scale.broker import bucket_keys
+from kybercore.scale.broker import bucket_keys, wrong_revision
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
 
@@ -60,8 +60,6 @@ FENCE_AT: Final = 0.8
 """Of the TTL: a slot not renewed for this long is no longer acted on."""
 RENEWAL_POLL: Final = 0.005
 """Seconds between looks at a renewal on its way, before a release."""
-WRONG_LAST: Final = 10071
-"""JetStream's error code for a compare-and-set on a revision that is not the key's."""
 T = TypeVar("T")
 
 
@@ -349,7 +347,7 @@ async def _all(calls: Iterable[Awaitable[T]]) -> list[T]:
 def _wrong_last(exc: Exception) -> bool:
     """The key is gone, or holds another revision (someone else's lease now): nats-py
     raises the latter from ``delete`` as a bare BadRequestError."""
-    return isinstance(exc, KeyNotFoundError) or getattr(exc, "err_code", None) == WRONG_LAST
+    return isinstance(exc, KeyNotFoundError) or wrong_revision(exc)
 
 
 def _append(path: Path, lines: list[str]) -> None:

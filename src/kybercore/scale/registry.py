@@ -29,14 +29,14 @@ from typing import Final
 
 from nats.aio.client import Client
 from nats.js import JetStreamContext
-from nats.js.errors import KeyNotFoundError, KeyWrongLastSequenceError
+from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
 from nats.js.kv import KeyValue
 from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected
 from kybercore.registry import changes
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.scale.broker import bucket_keys
+from kybercore.scale.broker import bucket_keys, wrong_revision
 from kybercore.scale.wire import dumps, loads
 
 log = logging.getLogger(__name__)
@@ -164,7 +164,7 @@ class KvRegistry:
                 named = ", ".join(sorted(missing)[:5])
                 log.warning("registry: read without %d listed key(s): %s", len(missing), named)
                 break
-            if entry is not None and entry.key.startswith(PREFIX):
+            if entry is not None:
                 missing.discard(entry.key)
                 await self._apply(found, entry)
         return found
@@ -172,8 +172,10 @@ class KvRegistry:
     async def _apply(
         self, found: dict[str, tuple[PrinterConfig, int]], entry: KeyValue.Entry
     ) -> bool:
-        """Apply one entry of a watch to ``found``; whether it changed anything. A broken
-        entry is skipped, logged."""
+        """Apply one entry of a watch to ``found``; whether it changed anything. A key that
+        is not a printer's, or a broken entry, is skipped (the latter logged)."""
+        if not entry.key.startswith(PREFIX):
+            return False
         printer_id = entry.key[len(PREFIX) :]
         if entry.operation in ("DEL", "PURGE") or not entry.value:
             return found.pop(printer_id, None) is not None
@@ -213,13 +215,18 @@ class KvRegistry:
         return updated
 
     async def remove(self, printer_id: str) -> PrinterConfig:
-        """Remove a printer: compare-and-set on the revision it was read at."""
-        entries = await self._entries()
-        removed = changes.remove_printer([config for config, _ in entries.values()], printer_id)
+        """Remove a printer: compare-and-set on the revision it was read at. Only its own
+        key is read: no rule about the others applies (an edit's does)."""
+        found: dict[str, tuple[PrinterConfig, int]] = {}
+        with contextlib.suppress(KeyNotFoundError):
+            await self._apply(found, await self.kv.get(_key(printer_id)))
+        removed = changes.remove_printer(_configs(found), printer_id)
         try:
-            await self.kv.delete(_key(printer_id), last=entries[printer_id][1])
-        except KeyWrongLastSequenceError:
-            raise _conflict(printer_id) from None
+            await self.kv.delete(_key(printer_id), last=found[printer_id][1])
+        except BadRequestError as exc:
+            if wrong_revision(exc):
+                raise _conflict(printer_id) from None
+            raise
         with contextlib.suppress(KeyNotFoundError):
             await self.secrets.delete(_key(printer_id))
         return removed
@@ -255,7 +262,7 @@ class KvRegistry:
                 if due is not None and (entry is _QUIET or loop.time() >= due):
                     due = None
                     on_change(_configs(current))
-                if entry is _QUIET or entry is None or not entry.key.startswith(PREFIX):
+                if entry is _QUIET or entry is None:
                     continue
                 if await self._apply(current, entry) and due is None:
                     due = loop.time() + BATCH_MAX_SECONDS
