@@ -111,10 +111,16 @@ async def test_frames_go_out_uncompressed_to_a_browser_offering_deflate(
         assert b'"type":"snapshot"' in await ws.recv(decode=False)
 
 
-async def test_ws_compress_deflates_frames_for_a_browser_offering_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("command", ["serve", "front"])
+async def test_ws_compress_deflates_frames_for_a_browser_offering_it(
+    tmp_path: Path, command: str, request: pytest.FixtureRequest
+) -> None:
     # For a dashboard watched over a slow link: the bytes matter more than the CPU.
     write_printers(tmp_path / "printers.json", [])
-    server = KyberCoreServer(tmp_path / "printers.json", free_port(), "--ws-compress")
+    broker = ("--nats", request.getfixturevalue("nats_server").url) if command == "front" else ()
+    server = KyberCoreServer(
+        tmp_path / "printers.json", free_port(), "--ws-compress", *broker, command=command
+    )
     try:
         await asyncio.to_thread(server.start)  # it blocks
         async with websockets.connect(server.ws_url, proxy=None) as ws:
