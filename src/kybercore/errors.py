@@ -19,6 +19,7 @@
     ├── ActionRejected                the action is not valid now (state, limits)
     ├── InvalidInput                  the request itself is malformed
     ├── AccessDenied                  who are you (unauthenticated) or not allowed (forbidden)
+    ├── BrokerUnavailable             NATS did not answer (distributed mode): check it, retry
     ├── ConfigError                   printers.json, tokens.json or an option is unusable
     └── LaunchError                   a process or port KyberCore needs could not be had
 
@@ -186,6 +187,14 @@ class AccessDenied(KyberCoreError):
     def __init__(self, message: str, *, code: AccessDenied.Kind) -> None:
         super().__init__(message)
         self.code = code
+
+
+class BrokerUnavailable(KyberCoreError):
+    """The NATS broker KyberCore's processes share did not answer (the distributed mode):
+    what needed it (the printer registry) was not read, or a change to it may or may not
+    have been made; check that nats-server runs and is reachable, then retry."""
+
+    code = "broker_unavailable"
 
 
 class ConfigError(KyberCoreError):

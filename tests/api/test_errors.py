@@ -12,6 +12,7 @@ from kybercore.api.errors import error_status
 from kybercore.errors import (
     AccessDenied,
     ActionRejected,
+    BrokerUnavailable,
     ConfigError,
     FileNotFound,
     InvalidInput,
@@ -43,6 +44,7 @@ from kybercore.errors import (
         (FileNotFound("no such file"), 404, "not_found"),
         (AccessDenied("who?", code="unauthorized"), 401, "unauthorized"),
         (AccessDenied("not you", code="forbidden"), 403, "forbidden"),
+        (BrokerUnavailable("no answer"), 503, "broker_unavailable"),
         (KyberCoreError("other"), 500, "error"),
     ],
 )

@@ -4,13 +4,14 @@ processes editing one printer at once cannot both win."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 import pytest
 from nats.js.errors import KeyNotFoundError
 from nats.js.kv import KeyValue
 from pydantic import SecretStr
 
-from kybercore.errors import ActionRejected, InvalidInput, UnknownPrinter
+from kybercore.errors import ActionRejected, BrokerUnavailable, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.scale.broker import LocalServer, bucket_keys, connect
 from kybercore.scale.registry import STORED, KvRegistry, fleet_order
@@ -244,3 +245,32 @@ async def test_bucket_keys_lists_every_key_under_a_prefix_deleted_ones_too(
             await kv.get("p.b")
     finally:
         await nc.close()
+
+
+async def test_a_broker_that_stops_answering_is_one_clear_error(nats_server: LocalServer) -> None:
+    nc = await connect(nats_server.url, "test")
+    try:
+        registry = KvRegistry()
+        await registry.open(nc)
+        await registry.import_if_empty(
+            [PrinterConfig(id="a", name="a", moonraker_url="http://127.0.0.1:7101")]
+        )
+        real_delete = registry.kv.delete
+
+        async def delete_once_the_broker_stopped(key: str, last: int | None = None) -> bool:
+            # The broker gone between the removal's read and its write: no one can tell
+            # whether the write got there.
+            await asyncio.to_thread(nats_server.stop)
+            return await real_delete(key, last=last)
+
+        registry.kv.delete = delete_once_the_broker_stopped  # type: ignore[method-assign]
+        with pytest.raises(BrokerUnavailable) as during:
+            await registry.remove("a")
+        assert "while removing printer 'a': it may or may not have been made" in str(during.value)
+        assert "reload the printer list" in during.value.message
+
+        with pytest.raises(BrokerUnavailable, match="Could not read the printer registry"):
+            await registry.printers()
+    finally:
+        with contextlib.suppress(Exception):  # the connection is still trying to get back
+            await nc.close()

@@ -27,6 +27,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from kybercore.errors import (
     AccessDenied,
     ActionRejected,
+    BrokerUnavailable,
     ChannelNotFound,
     ConfigError,
     FileNotFound,
@@ -56,6 +57,7 @@ _STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
     (MoonrakerRpcError, 502),
     (PrinterTimeout, 504),
     (PrinterUnreachable, 503),
+    (BrokerUnavailable, 503),
     (ConfigError, 500),
     (LaunchError, 500),
 )

@@ -24,16 +24,22 @@ import contextlib
 import functools
 import logging
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Final
 
+import nats.errors
 from nats.aio.client import Client
 from nats.js import JetStreamContext
-from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
+from nats.js.errors import (
+    BadRequestError,
+    KeyNotFoundError,
+    KeyWrongLastSequenceError,
+    ServiceUnavailableError,
+)
 from nats.js.kv import KeyValue
 from pydantic import SecretStr
 
-from kybercore.errors import ActionRejected
+from kybercore.errors import ActionRejected, BrokerUnavailable
 from kybercore.registry import changes
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
 from kybercore.scale.broker import bucket_keys, wrong_revision
@@ -53,6 +59,12 @@ BATCH_MAX_SECONDS: Final = 1.0
 READ_WAIT_SECONDS: Final = 10.0
 """Reading the bucket waits this long at most for the next key it listed."""
 _QUIET: Final = object()
+_NO_ANSWER: Final = (
+    nats.errors.TimeoutError,
+    nats.errors.NoRespondersError,
+    nats.errors.ConnectionClosedError,
+    ServiceUnavailableError,
+)
 
 OnPrinters = Callable[[list[PrinterConfig]], None]
 
@@ -80,6 +92,28 @@ def _conflict(printer_id: str) -> ActionRejected:
         "make your change again.",
         code="conflict",
     )
+
+
+@contextlib.contextmanager
+def _broker_answers(change: str | None = None) -> Iterator[None]:
+    """The broker's silence as :class:`BrokerUnavailable`, said once to whoever asked (a
+    front's API, the CLI) instead of nats-py's bare timeout. ``change``: the write under
+    way, whose outcome is then unknown; None for a read."""
+    try:
+        yield
+    except _NO_ANSWER:
+        if change is None:
+            message = (
+                "Could not read the printer registry: the NATS broker did not answer. "
+                "Check that nats-server is running and reachable, then try again."
+            )
+        else:
+            message = (
+                f"The NATS broker did not answer while {change}: it may or may not have been "
+                "made. Check that nats-server is running, reload the printer list, and make "
+                "the change again if it is not there."
+            )
+        raise BrokerUnavailable(message) from None
 
 
 class KvRegistry:
@@ -138,11 +172,12 @@ class KvRegistry:
 
     async def _entries(self) -> dict[str, tuple[PrinterConfig, int]]:
         """Every printer with its key's revision; a broken entry is skipped, logged."""
-        watcher = await self.kv.watchall()
-        try:
-            return await self._read(watcher)
-        finally:
-            await _stop(watcher)
+        with _broker_answers():
+            watcher = await self.kv.watchall()
+            try:
+                return await self._read(watcher)
+            finally:
+                await _stop(watcher)
 
     async def _read(self, watcher: KeyValue.KeyWatcher) -> dict[str, tuple[PrinterConfig, int]]:
         """Every printer, from a watch of the bucket just started (the last value of each
@@ -197,7 +232,8 @@ class KvRegistry:
         printers = await self.printers()
         printer = changes.add_printer(printers, new)
         try:
-            await self.kv.create(_key(printer.id), await self._store_key(printer))
+            with _broker_answers(f"adding printer '{printer.id}'"):
+                await self.kv.create(_key(printer.id), await self._store_key(printer))
         except KeyWrongLastSequenceError:
             raise _conflict(printer.id) from None
         return printer
@@ -208,8 +244,9 @@ class KvRegistry:
         printers = _configs(entries)
         updated = changes.update_printer(printers, printer_id, patch)
         try:
-            value = await self._store_key(updated, changed="api_key" in patch.model_fields_set)
-            await self.kv.update(_key(printer_id), value, last=entries[printer_id][1])
+            with _broker_answers(f"editing printer '{printer_id}'"):
+                value = await self._store_key(updated, changed="api_key" in patch.model_fields_set)
+                await self.kv.update(_key(printer_id), value, last=entries[printer_id][1])
         except KeyWrongLastSequenceError:
             raise _conflict(printer_id) from None
         return updated
@@ -218,17 +255,18 @@ class KvRegistry:
         """Remove a printer: compare-and-set on the revision it was read at. Only its own
         key is read: no rule about the others applies (an edit's does)."""
         found: dict[str, tuple[PrinterConfig, int]] = {}
-        with contextlib.suppress(KeyNotFoundError):
+        with _broker_answers(), contextlib.suppress(KeyNotFoundError):
             await self._apply(found, await self.kv.get(_key(printer_id)))
         removed = changes.remove_printer(_configs(found), printer_id)
-        try:
-            await self.kv.delete(_key(printer_id), last=found[printer_id][1])
-        except BadRequestError as exc:
-            if wrong_revision(exc):
-                raise _conflict(printer_id) from None
-            raise
-        with contextlib.suppress(KeyNotFoundError):
-            await self.secrets.delete(_key(printer_id))
+        with _broker_answers(f"removing printer '{printer_id}'"):
+            try:
+                await self.kv.delete(_key(printer_id), last=found[printer_id][1])
+            except BadRequestError as exc:
+                if wrong_revision(exc):
+                    raise _conflict(printer_id) from None
+                raise
+            with contextlib.suppress(KeyNotFoundError):
+                await self.secrets.delete(_key(printer_id))
         return removed
 
     async def import_if_empty(self, printers: list[PrinterConfig]) -> int:
@@ -236,7 +274,10 @@ class KvRegistry:
         if await self._entries():
             return 0
         for printer in printers:
-            with contextlib.suppress(KeyWrongLastSequenceError):  # another front won
+            with (
+                _broker_answers(f"importing printer '{printer.id}'"),
+                contextlib.suppress(KeyWrongLastSequenceError),  # another front won
+            ):
                 await self.kv.create(_key(printer.id), await self._store_key(printer))
         return len(printers)
 
