@@ -1,11 +1,13 @@
 """An upload's way across a real nats-server, with a stand-in for the printer's service: the
-file arrives whole and checked, every ending says what happened, and no object is left."""
+file arrives whole and checked, every ending says what happened, and no object is left. A
+command with the broker away is refused at once, as an upload is."""
 
 from __future__ import annotations
 
 import asyncio
 import hashlib
 import os
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,8 +15,15 @@ from typing import BinaryIO, cast
 
 import pytest
 from nats.aio.client import Client
+from nats.aio.msg import Msg
 
-from kybercore.errors import OutcomeUnknown, OwnerMoving, TransferFailed, UploadCorrupted
+from kybercore.errors import (
+    BrokerUnavailable,
+    OutcomeUnknown,
+    OwnerMoving,
+    TransferFailed,
+    UploadCorrupted,
+)
 from kybercore.fleet.actions import ActionOutcome
 from kybercore.fleet.service import FleetService
 from kybercore.scale import uploads as uploads_module
@@ -22,10 +31,12 @@ from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.commands import CommandRunner, send_command
 from kybercore.scale.uploads import BUCKET, UploadOrder, Uploads, send_upload
 from kybercore.scale.wire import command_subject, decode_outcome
-from tests.helpers import subscribed
+from tests.helpers import subscribed, wait_for
 from tests.scale.objects import stored, stored_bytes
 
 PRINTER = "p1"
+REFUSED_WITHIN = 1.0
+"""A refusal "at once" (a product promise; it takes well under a millisecond)."""
 
 
 @dataclass
@@ -155,6 +166,29 @@ async def test_the_broker_away_is_said_and_nothing_is_sent(
             pair.front, PRINTER, "a.gcode", b"G28\n", start=False, confirm=False, epoch=lambda: 1
         )
     assert pair.service.received == []
+
+
+async def test_a_command_while_the_broker_is_away_is_refused_at_once_and_never_sent_later(
+    pair: Pair, nats_server: LocalServer
+) -> None:
+    arrived: list[bytes] = []
+
+    async def sniff(msg: Msg) -> None:
+        arrived.append(msg.data)
+
+    await pair.worker.subscribe(command_subject(PRINTER), cb=sniff)
+    nats_server.stop()
+    await wait_for(lambda: not pair.front.is_connected, 10, "the front to see the broker gone")
+    began = time.monotonic()
+    with pytest.raises(BrokerUnavailable, match=r"p1: .* nothing was sent to the printer"):
+        await send_command(pair.front, PRINTER, "emergency_stop", {})
+    assert time.monotonic() - began < REFUSED_WITHIN
+    # nats-py would have held it and sent it once reconnected: nothing comes then.
+    nats_server.start(port=nats_server.port)
+    await wait_for(lambda: pair.front.is_connected and pair.worker.is_connected, 30, "reconnects")
+    await subscribed(pair.front)
+    await subscribed(pair.worker)
+    assert arrived == []
 
 
 async def test_the_bucket_expires_what_a_dead_process_left(nats_server: LocalServer) -> None:

@@ -30,7 +30,13 @@ from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import MaxPayloadError
 
-from kybercore.errors import ActionRejected, KyberCoreError, OutcomeUnknown, OwnerMoving
+from kybercore.errors import (
+    ActionRejected,
+    BrokerUnavailable,
+    KyberCoreError,
+    OutcomeUnknown,
+    OwnerMoving,
+)
 from kybercore.fleet.service import FleetService
 from kybercore.scale.ops import OPS
 from kybercore.scale.wire import (
@@ -67,6 +73,14 @@ def _moving(printer_id: str) -> OwnerMoving:
     )
 
 
+def _broker_gone(printer_id: str) -> BrokerUnavailable:
+    return BrokerUnavailable(
+        f"{printer_id}: this KyberCore process is not connected to the NATS broker, so nothing "
+        "was sent to the printer. Check that nats-server is running and reachable (KyberCore "
+        "reconnects by itself), then retry."
+    )
+
+
 def _unknown(printer_id: str, what: str, check: str) -> OutcomeUnknown:
     return OutcomeUnknown(
         f"the printer's KyberCore worker {what}, so whether the command ran is unknown. {check}",
@@ -95,8 +109,13 @@ async def send_command(
     check: str = CHECK_PRINTER,
 ) -> Any:
     """Run ``op`` on the printer's owner; its result, or the error it raised (OwnerMoving
-    when nobody holds the printer, OutcomeUnknown when the owner went silent: ``check``
-    says what to look at before sending it again)."""
+    when nobody holds the printer, BrokerUnavailable when this process is not connected to
+    the broker, OutcomeUnknown when the owner went silent: ``check`` says what to look at
+    before sending it again)."""
+    if not nc.is_connected:
+        # nats-py would hold the command and send it once back: an e-stop or a start that
+        # runs minutes after its caller was told "unknown". Said at once instead.
+        raise _broker_gone(printer_id)
     inbox = nc.new_inbox()
     sub = await nc.subscribe(inbox, max_msgs=2)
     try:
@@ -110,6 +129,8 @@ async def send_command(
             ack = await sub.next_msg(timeout=ACK_SECONDS)
         except TimeoutError:
             took = f"did not take it within {ACK_SECONDS:.0f} s"
+            if not nc.is_connected:
+                took = "could not be reached: this process lost the NATS broker meanwhile"
             raise _unknown(printer_id, took, check) from None
         if ack.headers and ack.headers.get("Status") == "503":
             raise _moving(printer_id)
