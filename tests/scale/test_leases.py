@@ -34,17 +34,19 @@ KV call waits for about 7 turns, a renewal round of 32 slots one after another 3
 
 
 class Start(Protocol):
-    def __call__(self, name: str, slots: int = SLOTS, site: str = "") -> Awaitable[Leases]: ...
+    def __call__(
+        self, name: str, slots: int = SLOTS, site: str = "", ttl: float = TTL
+    ) -> Awaitable[Leases]: ...
 
 
 @pytest.fixture
 async def workers(nats_server: LocalServer, tmp_path: Path) -> AsyncIterator[Start]:
     started: list[tuple[Leases, Client]] = []
 
-    async def start(name: str, slots: int = SLOTS, site: str = "") -> Leases:
+    async def start(name: str, slots: int = SLOTS, site: str = "", ttl: float = TTL) -> Leases:
         nc = await connect(nats_server.url, name)
         leases = Leases(
-            nc, name, url=nats_server.url, slots=slots, ttl=TTL, site=site,
+            nc, name, url=nats_server.url, slots=slots, ttl=ttl, site=site,
             log_path=tmp_path / f"{name}.log",
         )  # fmt: skip
         await leases.start()
@@ -89,6 +91,19 @@ async def test_two_workers_split_evenly_and_a_third_rebalances(
     for w in (w1, w2, w3):
         await w.flush_log()
     no_overlap(sorted(tmp_path.glob("w*.log")))
+
+
+async def test_a_worker_given_another_ttl_fences_by_the_buckets(
+    workers: Start, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Its leases expire at the bucket's TTL: fencing by a longer one of its own would let
+    # a peer take a slot it still acts for. (It used to stop at start: JetStream refuses
+    # to create a bucket again with another TTL.)
+    w1 = await workers("w1")
+    w2 = await workers("w2", ttl=TTL * 2)
+    assert w2.ttl == TTL
+    assert "the kc_slots bucket's leases last 3 s (this process was given 6 s)" in caplog.text
+    await until("8/8", lambda: len(w1.owned()) == len(w2.owned()) == SLOTS // 2)
 
 
 async def test_workers_started_together_take_their_shares_at_once(

@@ -34,7 +34,9 @@ if TYPE_CHECKING:
 NatsUrl = Annotated[
     str,
     typer.Option(
-        "--nats", envvar="KYBERCORE_NATS", help="The NATS server (nats://host:4222), JetStream on."
+        "--nats",
+        envvar="KYBERCORE_NATS",
+        help="The NATS server (nats://host:4222), JetStream on; a cluster's, separated by commas.",
     ),
 ]
 Slots = Annotated[

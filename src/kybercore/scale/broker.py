@@ -8,6 +8,7 @@ up reconnecting after about two minutes and notices a dead TCP connection after 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import shutil
@@ -24,7 +25,13 @@ import nats
 from nats.aio.client import Client
 from nats.js import JetStreamContext
 from nats.js.api import ObjectStoreConfig
-from nats.js.errors import BadRequestError, KeyWrongLastSequenceError, NotFoundError
+from nats.js.errors import (
+    BadRequestError,
+    BucketNotFoundError,
+    KeyWrongLastSequenceError,
+    NotFoundError,
+)
+from nats.js.kv import KeyValue
 from nats.js.object_store import ObjectStore
 
 from kybercore.errors import LaunchError
@@ -38,14 +45,20 @@ WRONG_REVISION: Final = (10071, 10164)
 log = logging.getLogger(__name__)
 
 
+def servers(url: str) -> list[str]:
+    """The servers in ``url``: one, or a cluster's, separated by commas."""
+    return [server.strip() for server in url.split(",") if server.strip()]
+
+
 async def connect(url: str, name: str) -> Client:
-    """A connection to ``url`` that, once made, reconnects forever (half a second apart).
+    """A connection to ``url`` (one server, or several of a cluster separated by commas)
+    that, once made, reconnects forever (half a second apart), to any of them.
 
     A broker that is not there at the start is an :class:`OSError` at once: nats-py would
     retry the first connection forever too, printing a traceback each time."""
     await reachable(url)
     return await nats.connect(
-        url,
+        servers(url),
         name=name,
         max_reconnect_attempts=-1,
         reconnect_time_wait=0.5,
@@ -59,14 +72,14 @@ async def connect(url: str, name: str) -> Client:
 async def reachable(url: str) -> None:
     """Whether one of the servers in ``url`` takes a TCP connection; OSError saying why not."""
     errors = []
-    for server in url.split(","):
-        parts = urlsplit(server.strip() if "://" in server else f"nats://{server.strip()}")
+    for server in servers(url):
+        parts = urlsplit(server if "://" in server else f"nats://{server}")
         try:
             _, writer = await asyncio.wait_for(
                 asyncio.open_connection(parts.hostname, parts.port or 4222), 5
             )
         except (OSError, TimeoutError) as exc:
-            errors.append(f"{server.strip()}: {exc or 'no answer in 5 s'}")
+            errors.append(f"{server}: {exc or 'no answer in 5 s'}")
             continue
         writer.close()
         return
@@ -106,6 +119,29 @@ def wrong_revision(exc: Exception) -> bool:
     return isinstance(exc, KeyWrongLastSequenceError) or (
         isinstance(exc, BadRequestError) and exc.err_code in WRONG_REVISION
     )
+
+
+async def lease_bucket(
+    js: JetStreamContext, bucket: str, ttl: float, who: str
+) -> tuple[KeyValue, float]:
+    """The lease bucket ``bucket`` (created with ``ttl`` when there is none) and its TTL.
+
+    Every process must fence by the TTL its leases expire at, which is the bucket's: a
+    process started with another one follows the bucket, said once in the log. Changing it
+    takes stopping every process that uses the bucket and deleting it."""
+    try:
+        kv = await js.key_value(bucket)
+    except BucketNotFoundError:
+        with contextlib.suppress(BadRequestError):  # another process made it meanwhile
+            await js.create_key_value(bucket=bucket, ttl=ttl, history=1)
+        kv = await js.key_value(bucket)
+    found = (await kv.status()).ttl or ttl
+    if abs(found - ttl) > 1e-3:
+        log.warning(
+            "%s: the %s bucket's leases last %g s (this process was given %g s); "
+            "following the bucket's", who, bucket, found, ttl,
+        )  # fmt: skip
+    return kv, found
 
 
 async def bucket_keys(js: JetStreamContext, bucket: str, prefix: str = "") -> list[str]:

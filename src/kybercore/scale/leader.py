@@ -22,14 +22,13 @@ from typing import Final
 
 from nats.aio.client import Client
 from nats.js.errors import (
-    BadRequestError,
-    BucketNotFoundError,
     KeyNotFoundError,
     KeyWrongLastSequenceError,
 )
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
+from kybercore.scale.broker import lease_bucket
 from kybercore.scale.leases import FENCE_AT
 
 log = logging.getLogger(__name__)
@@ -67,21 +66,8 @@ class Leadership:
     async def start(self) -> None:
         """Open (or create) the bucket and start contending. The bucket's TTL is the one
         every contender must fence by: a process configured otherwise follows the bucket."""
-        js = self._nc.jetstream()
-        try:
-            self._kv = await js.key_value(ROLES_BUCKET)
-        except BucketNotFoundError:
-            with contextlib.suppress(BadRequestError):  # another made it meanwhile
-                await js.create_key_value(bucket=ROLES_BUCKET, ttl=self.ttl, history=1)
-            self._kv = await js.key_value(ROLES_BUCKET)
-        ttl = (await self._kv.status()).ttl
-        if ttl and abs(ttl - self.ttl) > 1e-3:
-            log.warning(
-                "%s: the %s role's bucket has a TTL of %g s (this process was given %g s); "
-                "following the bucket's",
-                self.holder, self.role, ttl, self.ttl,
-            )  # fmt: skip
-            self.ttl = ttl
+        who = f"{self.holder} ({self.role} role)"
+        self._kv, self.ttl = await lease_bucket(self._nc.jetstream(), ROLES_BUCKET, self.ttl, who)
         self._task = asyncio.create_task(self._loop(), name=f"role-{self.role}")
 
     async def stop(self) -> None:

@@ -48,7 +48,7 @@ from nats.js.errors import (
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
-from kybercore.scale.broker import bucket_keys, wrong_revision
+from kybercore.scale.broker import bucket_keys, lease_bucket, wrong_revision
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
 
@@ -116,11 +116,11 @@ class Leases:
         """monotonic() when the worker's loop last turned (see :mod:`.renewer`)."""
 
     async def start(self) -> None:
-        """Open (or create) the buckets and start the renewal loop."""
+        """Open (or create) the buckets and start the renewal loop. The slots bucket's TTL
+        is the one to fence by: a worker given another one follows it."""
         self._home = asyncio.get_running_loop()
-        js = self._js
-        self._kv = await js.create_key_value(bucket=SLOTS_BUCKET, ttl=self.ttl, history=1)
-        self._workers = await js.create_key_value(bucket=WORKERS_BUCKET, ttl=self.ttl, history=1)
+        self._kv, self.ttl = await lease_bucket(self._js, SLOTS_BUCKET, self.ttl, self.worker)
+        self._workers, _ = await lease_bucket(self._js, WORKERS_BUCKET, self.ttl, self.worker)
         self._task = asyncio.create_task(self._loop(), name=f"leases-{self.worker}")
 
     async def stop(self, release: bool = True) -> None:
