@@ -17,7 +17,8 @@ from nats.aio.client import Client
 from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
 
 from kybercore.scale import leases as leases_module
-from kybercore.scale.broker import LocalServer, bucket_keys, connect
+from kybercore.scale.broker import LocalServer, connect
+from kybercore.scale.buckets import bucket_keys
 from kybercore.scale.leases import FENCE_AT, SLOTS_BUCKET, Leases, _wrong_last
 from kybercore.scale.slots import slot_key
 from tests.helpers import wait_for

@@ -13,7 +13,8 @@ from pydantic import SecretStr
 
 from kybercore.errors import ActionRejected, BrokerUnavailable, InvalidInput, UnknownPrinter
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.scale.broker import LocalServer, bucket_keys, connect
+from kybercore.scale.broker import LocalServer, connect
+from kybercore.scale.buckets import bucket_keys
 from kybercore.scale.registry import STORED, KvRegistry, fleet_order
 from tests.helpers import wait_for
 

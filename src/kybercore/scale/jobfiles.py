@@ -35,7 +35,7 @@ from kybercore.fleet.service import FleetService
 from kybercore.jobs.files import Content, JobFiles
 from kybercore.jobs.models import JobFile
 from kybercore.jobs.printers import FleetPrinters
-from kybercore.scale.broker import object_store
+from kybercore.scale.buckets import object_store
 from kybercore.scale.uploads import CHUNK_BYTES, HashingWriter
 
 log = logging.getLogger(__name__)

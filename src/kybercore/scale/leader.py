@@ -28,7 +28,7 @@ from nats.js.errors import (
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
-from kybercore.scale.broker import lease_bucket
+from kybercore.scale.buckets import lease_bucket
 from kybercore.scale.leases import FENCE_AT
 
 log = logging.getLogger(__name__)

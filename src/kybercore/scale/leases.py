@@ -48,7 +48,7 @@ from nats.js.errors import (
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
-from kybercore.scale.broker import bucket_keys, lease_bucket, wrong_revision
+from kybercore.scale.buckets import bucket_keys, lease_bucket, wrong_revision
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
 

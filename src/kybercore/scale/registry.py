@@ -34,6 +34,7 @@ from nats.js.errors import (
     BadRequestError,
     KeyNotFoundError,
     KeyWrongLastSequenceError,
+    NoStreamResponseError,
     ServiceUnavailableError,
 )
 from nats.js.kv import KeyValue
@@ -42,7 +43,7 @@ from pydantic import SecretStr
 from kybercore.errors import ActionRejected, BrokerUnavailable
 from kybercore.registry import changes
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
-from kybercore.scale.broker import bucket_keys, wrong_revision
+from kybercore.scale.buckets import bucket_keys, key_value, wrong_revision
 from kybercore.scale.wire import dumps, loads
 
 log = logging.getLogger(__name__)
@@ -63,6 +64,7 @@ _NO_ANSWER: Final = (
     nats.errors.TimeoutError,
     nats.errors.NoRespondersError,
     nats.errors.ConnectionClosedError,
+    NoStreamResponseError,  # a cluster electing the bucket's leader
     ServiceUnavailableError,
 )
 
@@ -129,8 +131,8 @@ class KvRegistry:
     async def open(self, nc: Client) -> None:
         """Open (or create) the buckets; file storage, so they outlive a broker restart."""
         self._js = js = nc.jetstream()
-        self._kv = await js.create_key_value(bucket=BUCKET, history=10)
-        self._secrets = await js.create_key_value(bucket=SECRETS, history=1)
+        self._kv = await key_value(js, BUCKET, history=10)
+        self._secrets = await key_value(js, SECRETS, history=1)
 
     @property
     def kv(self) -> KeyValue:

@@ -41,7 +41,7 @@ from kybercore.core.paths import safe_path
 from kybercore.errors import InvalidInput, TransferFailed, UploadCorrupted
 from kybercore.fleet.actions import ActionOutcome
 from kybercore.fleet.service import FleetService
-from kybercore.scale.broker import object_store
+from kybercore.scale.buckets import object_store
 from kybercore.scale.commands import ANSWER_SECONDS, send_command
 
 log = logging.getLogger(__name__)
