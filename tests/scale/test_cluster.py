@@ -13,7 +13,7 @@ import pytest
 from nats.aio.client import Client
 
 from kybercore.errors import BrokerUnavailable
-from kybercore.registry.models import PrinterConfig, PrinterCreate
+from kybercore.registry.models import PrinterCreate
 from kybercore.scale.broker import LocalServer, connect
 from kybercore.scale.buckets import REPLICAS
 from kybercore.scale.leases import SLOTS_BUCKET, Leases
@@ -104,11 +104,7 @@ async def test_losing_the_node_a_process_is_on_loses_no_printer_and_no_lease(
 async def test_a_single_server_keeps_one_copy(nats_server: LocalServer) -> None:
     nc = await connect(nats_server.url, "test")
     try:
-        registry = KvRegistry()
-        await registry.open(nc)
-        await registry.import_if_empty(
-            [PrinterConfig(id="a", name="a", moonraker_url="http://127.0.0.1:7101")]
-        )
+        await KvRegistry().open(nc)  # creates its buckets
         assert (await nc.jetstream().stream_info(f"KV_{BUCKET}")).config.num_replicas == 1
     finally:
         await nc.close()
