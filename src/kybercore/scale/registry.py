@@ -123,6 +123,7 @@ class KvRegistry:
 
     def __init__(self, *, read_keys: bool = False) -> None:
         """``read_keys``: fill in the API keys (workers); else :data:`STORED` (fronts)."""
+        self._nc: Client | None = None
         self._js: JetStreamContext | None = None
         self._kv: KeyValue | None = None
         self._secrets: KeyValue | None = None
@@ -130,6 +131,7 @@ class KvRegistry:
 
     async def open(self, nc: Client) -> None:
         """Open (or create) the buckets; file storage, so they outlive a broker restart."""
+        self._nc = nc
         self._js = js = nc.jetstream()
         self._kv = await key_value(js, BUCKET, history=10)
         self._secrets = await key_value(js, SECRETS, history=1)
@@ -224,14 +226,25 @@ class KvRegistry:
         found[printer_id] = (config, entry.revision or 0)
         return True
 
+    def _connected(self) -> None:
+        """Refuse at once while this process is cut off from the broker: nats-py would hold
+        the request until it reconnects or the request times out (5 s)."""
+        if self._nc is not None and not self._nc.is_connected:
+            raise BrokerUnavailable(
+                "This KyberCore process is not connected to the NATS broker, so the printer "
+                "registry was not read and nothing was changed. Check that nats-server is "
+                "running and reachable (KyberCore reconnects by itself), then try again."
+            )
+
     async def printers(self) -> list[PrinterConfig]:
         """Every printer, in fleet order."""
+        self._connected()
         return _configs(await self._entries())
 
     async def add(self, new: PrinterCreate) -> PrinterConfig:
         """Add a printer (the rules of printers.json); a clash with a concurrent add is a
         conflict."""
-        printers = await self.printers()
+        printers = await self.printers()  # checks the connection
         printer = changes.add_printer(printers, new)
         try:
             with _broker_answers(f"adding printer '{printer.id}'"):
@@ -242,6 +255,7 @@ class KvRegistry:
 
     async def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
         """Edit a printer: compare-and-set on the revision it was read at."""
+        self._connected()
         entries = await self._entries()
         printers = _configs(entries)
         updated = changes.update_printer(printers, printer_id, patch)
@@ -256,6 +270,7 @@ class KvRegistry:
     async def remove(self, printer_id: str) -> PrinterConfig:
         """Remove a printer: compare-and-set on the revision it was read at. Only its own
         key is read: no rule about the others applies (an edit's does)."""
+        self._connected()
         found: dict[str, tuple[PrinterConfig, int]] = {}
         with _broker_answers(), contextlib.suppress(KeyNotFoundError):
             await self._apply(found, await self.kv.get(_key(printer_id)))
