@@ -1,18 +1,21 @@
 """``/metrics`` on a front: the printers it follows from the workers, counted by state
-with their heaters, the queue and the jobs from the shared database, and a printer no
-worker reports counted as stale. Real nats-server, workers, front, PostgreSQL, Moonraker
-and Klippy."""
+with their heaters, the queue and the jobs from the shared database, a printer no worker
+reports counted as stale, and whether the front is connected to the broker. Real
+nats-server, workers, front, PostgreSQL, Moonraker and Klippy."""
 
 from __future__ import annotations
 
 import signal
+from pathlib import Path
 
 import httpx
 import pytest
 
-from kybercore.sim.stack import PrinterStack
+from kybercore.registry.store import write_printers
+from kybercore.scale.broker import LocalServer
+from kybercore.sim.stack import PrinterStack, free_port
 from tests.browser_mirror import BrowserMirror
-from tests.helpers import wait_for
+from tests.helpers import KyberCoreServer, wait_for, wait_until
 from tests.metrics_scrape import (
     Samples,
     assert_printers_as_viewed,
@@ -154,3 +157,29 @@ async def test_a_printer_no_worker_reports_is_stale_in_a_fronts_metrics(
     assert "kybercore_print_progress_ratio" not in samples
     assert "kybercore_worker_slots" not in samples  # no worker reports anything
     assert "kybercore_worker_event_loop_lag_seconds" not in samples
+
+
+def test_a_front_cut_off_from_the_broker_says_so_in_health_and_metrics(
+    nats_server: LocalServer, tmp_path: Path
+) -> None:
+    # What a load balancer's health check or an alert reads: the printers are stale and
+    # the actions refused because this front lost NATS, not because the printers did.
+    write_printers(tmp_path / "printers.json", [])
+    front = KyberCoreServer(
+        tmp_path / "printers.json", free_port(), "--nats", nats_server.url, command="front"
+    )
+    front.start()
+    try:
+
+        def broker() -> tuple[object, object]:
+            health = httpx.get(f"{front.url}/api/health", timeout=10).json()["broker"]
+            metrics = parse(httpx.get(f"{front.url}/metrics", timeout=10).text)
+            return health, metrics["kybercore_broker_connected"][()]
+
+        assert broker() == ("connected", 1)
+        nats_server.stop()
+        wait_until(lambda: broker() == ("disconnected", 0), STALE_WITHIN, "the front to say so")
+        nats_server.start(port=nats_server.port)
+        wait_until(lambda: broker() == ("connected", 1), STALE_WITHIN, "the front to reconnect")
+    finally:
+        front.stop()

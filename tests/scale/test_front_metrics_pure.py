@@ -66,9 +66,10 @@ def test_a_stale_printer_is_counted_under_stale_without_its_last_readings() -> N
 def test_each_worker_a_front_hears_is_shown_with_its_slots_and_loop_lag() -> None:
     shown = Snapshot(
         views=[], states={}, jobs={}, queue=QueueFigures(), reconnects={}, browsers=0,
-        loop_lag=0.0, workers={"w1": (40, 0.012), "w2": (24, 1.25)},
+        loop_lag=0.0, workers={"w1": (40, 0.012), "w2": (24, 1.25)}, broker_connected=False,
     )  # fmt: skip
     samples = parse(exposition(shown).decode())
+    assert samples["kybercore_broker_connected"] == {(): 0}
     assert samples["kybercore_worker_slots"] == {(("worker", "w1"),): 40, (("worker", "w2"),): 24}
     assert samples["kybercore_worker_event_loop_lag_seconds"] == {
         (("worker", "w1"),): 0.012,

@@ -32,6 +32,7 @@ router = APIRouter()
 async def health(service: Service) -> dict[str, Any]:
     """Liveness plus a one-line picture of the fleet."""
     views = service.views()
+    connected = service.broker_connected
     return {
         "status": "ok",
         "version": __version__,
@@ -39,6 +40,7 @@ async def health(service: Service) -> dict[str, Any]:
         "online": sum(v["connection"] == "online" for v in views),
         "browsers": service.hub.client_count,
         "config_error": service.config_error,
+        "broker": None if connected is None else "connected" if connected else "disconnected",
     }
 
 

@@ -373,6 +373,11 @@ class Health(BaseModel):
     online: int
     browsers: int
     config_error: str | None = Field(description="Why the last printers.json edit was refused.")
+    broker: Literal["connected", "disconnected"] | None = Field(
+        None,
+        description="A front on NATS: whether it is connected to the broker now (while "
+        "disconnected its printers are stale and its actions refused). None on serve.",
+    )
 
 
 class FileItem(BaseModel):

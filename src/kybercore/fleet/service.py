@@ -92,6 +92,11 @@ class FleetService:
         self.webcams = WebcamProxy(http)
         self.mdns_interfaces = mdns_interfaces
 
+    @property
+    def broker_connected(self) -> bool | None:
+        """Whether the process is connected to its NATS broker; None: it has none (serve)."""
+        return None
+
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:

@@ -68,6 +68,8 @@ class Snapshot:
     loop_lag: float
     workers: dict[str, tuple[int, float]] = field(default_factory=dict)
     """On a front on NATS: each worker reporting fresh slots, as (slots, its loop's lag)."""
+    broker_connected: bool | None = None
+    """On a front on NATS: whether it is connected to the broker now; None on serve."""
 
 
 class Source(Protocol):
@@ -130,6 +132,13 @@ class _Collector(Collector):
             value=snapshot.loop_lag,
         )
         yield from _worker_metrics(snapshot.workers)
+        if snapshot.broker_connected is not None:
+            yield GaugeMetricFamily(
+                "kybercore_broker_connected",
+                "1 while this front is connected to the NATS broker; 0 while cut off, when "
+                "its printers turn stale and its actions are refused (none on serve)",
+                value=int(snapshot.broker_connected),
+            )
 
 
 def _worker_metrics(workers: dict[str, tuple[int, float]]) -> Iterator[Metric]:

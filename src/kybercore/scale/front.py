@@ -142,6 +142,11 @@ class FrontFleet(FleetService):
         """The front's NATS connection (once started)."""
         return self._nc
 
+    @property
+    def broker_connected(self) -> bool | None:
+        """Whether this front is connected to the broker now (False before it started)."""
+        return self._connection is not None and self._connection.is_connected
+
     # -- following -----------------------------------------------------------------------
 
     def _on_printers(self, printers: list[PrinterConfig]) -> None:

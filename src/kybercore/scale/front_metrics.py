@@ -108,4 +108,5 @@ class FrontMetrics:
             browsers=self._fleet.hub.client_count,
             loop_lag=self._lag.seconds,
             workers={w: (s.slots, s.loop_lag) for w, s in self._fleet.copy.workers().items()},
+            broker_connected=self._fleet.broker_connected,
         )
