@@ -119,6 +119,14 @@ def test_failover_rebalance_fencing_and_broker_restart(
 
     # 4. The broker restarts: every process reconnects, every printer fresh again.
     cluster.broker.stop()
+    # Meanwhile the front says why its printers are stale: it is cut off, not they.
+    wait_until(
+        lambda: all(
+            v["connection"] == "stale" and "lost its connection to the NATS broker" in
+            v["connection_error"] for v in cluster.views()
+        ),
+        SETTLE, "the front to say it is cut off",
+    )  # fmt: skip
     cluster.broker.start(port=cluster.broker.port)
     wait_until(lambda: cluster.all_fresh(count), 60, "every printer fresh after the broker restart")
     # JetStream recovers its streams for a few seconds after a restart: leases may still

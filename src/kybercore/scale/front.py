@@ -72,6 +72,11 @@ log = logging.getLogger(__name__)
 
 CHECK_SECONDS: Final = 0.25
 SNAPSHOT_TIMEOUT: Final = 2.0
+_CUT_OFF: Final = (
+    "This KyberCore front has lost its connection to the NATS broker: the last state it "
+    "received is shown, and updates come again once the broker is back. The printer itself "
+    "may be fine."
+)
 
 Watcher = Callable[[str, dict[str, Any] | None], None]
 """Told ``(printer id, patch)`` for each patch applied to a printer's view, and
@@ -243,6 +248,8 @@ class FrontFleet(FleetService):
             message = (
                 f"No news from the KyberCore worker holding this printer for over "
                 f"{STALE_SECONDS:.0f} s; another worker takes it over shortly."
+                if self.broker_connected
+                else _CUT_OFF
             )
             return {**view, "connection": "stale", "connection_error": message}
         return view
