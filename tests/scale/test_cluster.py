@@ -123,3 +123,18 @@ async def test_a_cluster_without_room_for_every_copy_says_so(
             await KvRegistry().open(nc)
     finally:
         await nc.close()
+
+
+async def test_a_bucket_left_with_one_copy_on_a_cluster_is_pointed_out(
+    nodes: list[LocalServer], caplog: pytest.LogCaptureFixture
+) -> None:
+    # Made before KyberCore replicated its buckets: used as it is, and said how to fix.
+    nc = await connect(",".join(node.url for node in nodes), "front")
+    try:
+        await wait_for(lambda: ready(nc), READY_WITHIN, "JetStream on the cluster")
+        await nc.jetstream().create_key_value(bucket=BUCKET, history=10, replicas=1)
+        await KvRegistry().open(nc)
+        assert "nats stream edit KV_kc_registry --replicas 3" in caplog.text
+        assert "KV_kc_secrets" not in caplog.text  # created now, with 3 copies
+    finally:
+        await nc.close()

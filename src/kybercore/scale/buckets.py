@@ -72,13 +72,29 @@ async def _replicated(create: Callable[[int], Awaitable[T]], bucket: str) -> T:
         await asyncio.sleep(PLACE_RETRY)
 
 
+async def _check_copies(js: JetStreamContext, stream: str) -> None:
+    """Warn about a bucket with fewer than :data:`REPLICAS` copies on a cluster: one made
+    before KyberCore replicated its buckets, which it leaves as it is."""
+    info = await js.stream_info(stream)
+    copies = info.config.num_replicas or 1
+    if info.cluster is not None and info.cluster.name and copies < REPLICAS:
+        log.warning(
+            "%s keeps %d copy on the NATS cluster %s: losing that server stops KyberCore. "
+            "Raise it with: nats stream edit %s --replicas %d",
+            stream, copies, info.cluster.name, stream, REPLICAS,
+        )  # fmt: skip
+
+
 async def key_value(js: JetStreamContext, bucket: str, **config: Any) -> KeyValue:
     """The key-value ``bucket``, created with ``config`` (nats-py's KeyValueConfig fields)
     when there is none."""
     try:
-        return await js.key_value(bucket)
+        kv = await js.key_value(bucket)
     except BucketNotFoundError:
         pass
+    else:
+        await _check_copies(js, f"KV_{bucket}")
+        return kv
 
     async def create(replicas: int) -> KeyValue:
         return await js.create_key_value(bucket=bucket, replicas=replicas, **config)
@@ -113,9 +129,12 @@ async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
     assert bucket is not None
     js = nc.jetstream()
     try:
-        return await js.object_store(bucket)
+        store = await js.object_store(bucket)
     except NotFoundError:
         pass
+    else:
+        await _check_copies(js, f"OBJ_{bucket}")
+        return store
 
     async def create(replicas: int) -> ObjectStore:
         return await js.create_object_store(bucket, config.evolve(replicas=replicas))
