@@ -180,9 +180,11 @@ async def test_a_command_while_the_broker_is_away_is_refused_at_once_and_never_s
     nats_server.stop()
     await wait_for(lambda: not pair.front.is_connected, 10, "the front to see the broker gone")
     began = time.monotonic()
-    with pytest.raises(BrokerUnavailable, match=r"p1: .* nothing was sent to the printer"):
+    with pytest.raises(BrokerUnavailable, match=r"nothing was sent to the printer p1"):
         await send_command(pair.front, PRINTER, "emergency_stop", {})
-    assert time.monotonic() - began < REFUSED_WITHIN
+    took = time.monotonic() - began
+    print(f"refused in {took * 1000:.2f} ms")
+    assert took < REFUSED_WITHIN
     # nats-py would have held it and sent it once reconnected: nothing comes then.
     nats_server.start(port=nats_server.port)
     await wait_for(lambda: pair.front.is_connected and pair.worker.is_connected, 30, "reconnects")

@@ -23,7 +23,7 @@ from urllib.parse import urlsplit
 import nats
 from nats.aio.client import Client
 
-from kybercore.errors import LaunchError
+from kybercore.errors import BrokerUnavailable, LaunchError
 
 PING_SECONDS: Final = 2.0
 """A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
@@ -54,6 +54,18 @@ async def connect(url: str, name: str) -> Client:
         connect_timeout=5,
         error_cb=_errors(url),
     )
+
+
+def require_connected(nc: Client | None, consequence: str) -> None:
+    """Refuse at once while ``nc`` is cut off from the broker (``consequence`` says what
+    therefore did not happen): nats-py would hold the request and send it once back,
+    minutes later perhaps, after its caller was told it failed."""
+    if nc is not None and not nc.is_connected:
+        raise BrokerUnavailable(
+            f"This KyberCore process is not connected to the NATS broker, so {consequence}. "
+            "Check that nats-server is running and reachable (KyberCore reconnects by "
+            "itself), then try again."
+        )
 
 
 async def reachable(url: str) -> None:

@@ -32,12 +32,12 @@ from nats.errors import MaxPayloadError
 
 from kybercore.errors import (
     ActionRejected,
-    BrokerUnavailable,
     KyberCoreError,
     OutcomeUnknown,
     OwnerMoving,
 )
 from kybercore.fleet.service import FleetService
+from kybercore.scale.broker import require_connected
 from kybercore.scale.ops import OPS
 from kybercore.scale.wire import (
     EPOCH_HEADER,
@@ -73,14 +73,6 @@ def _moving(printer_id: str) -> OwnerMoving:
     )
 
 
-def _broker_gone(printer_id: str) -> BrokerUnavailable:
-    return BrokerUnavailable(
-        f"{printer_id}: this KyberCore process is not connected to the NATS broker, so nothing "
-        "was sent to the printer. Check that nats-server is running and reachable (KyberCore "
-        "reconnects by itself), then retry."
-    )
-
-
 def _unknown(printer_id: str, what: str, check: str) -> OutcomeUnknown:
     return OutcomeUnknown(
         f"the printer's KyberCore worker {what}, so whether the command ran is unknown. {check}",
@@ -112,10 +104,8 @@ async def send_command(
     when nobody holds the printer, BrokerUnavailable when this process is not connected to
     the broker, OutcomeUnknown when the owner went silent: ``check`` says what to look at
     before sending it again)."""
-    if not nc.is_connected:
-        # nats-py would hold the command and send it once back: an e-stop or a start that
-        # runs minutes after its caller was told "unknown". Said at once instead.
-        raise _broker_gone(printer_id)
+    # An e-stop or a start held by nats-py would run after its caller was told it failed.
+    require_connected(nc, f"nothing was sent to the printer {printer_id}")
     inbox = nc.new_inbox()
     sub = await nc.subscribe(inbox, max_msgs=2)
     try:

@@ -43,6 +43,7 @@ from pydantic import SecretStr
 from kybercore.errors import ActionRejected, BrokerUnavailable
 from kybercore.registry import changes
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
+from kybercore.scale.broker import require_connected
 from kybercore.scale.buckets import bucket_keys, key_value, wrong_revision
 from kybercore.scale.wire import dumps, loads
 
@@ -59,6 +60,7 @@ BATCH_MAX_SECONDS: Final = 1.0
 """...or this long after it came, however many follow (a long import shows as it goes)."""
 READ_WAIT_SECONDS: Final = 10.0
 """Reading the bucket waits this long at most for the next key it listed."""
+_NOT_READ: Final = "the printer registry was not read and nothing was changed"
 _QUIET: Final = object()
 _NO_ANSWER: Final = (
     nats.errors.TimeoutError,
@@ -226,19 +228,9 @@ class KvRegistry:
         found[printer_id] = (config, entry.revision or 0)
         return True
 
-    def _connected(self) -> None:
-        """Refuse at once while this process is cut off from the broker: nats-py would hold
-        the request until it reconnects or the request times out (5 s)."""
-        if self._nc is not None and not self._nc.is_connected:
-            raise BrokerUnavailable(
-                "This KyberCore process is not connected to the NATS broker, so the printer "
-                "registry was not read and nothing was changed. Check that nats-server is "
-                "running and reachable (KyberCore reconnects by itself), then try again."
-            )
-
     async def printers(self) -> list[PrinterConfig]:
         """Every printer, in fleet order."""
-        self._connected()
+        require_connected(self._nc, _NOT_READ)
         return _configs(await self._entries())
 
     async def add(self, new: PrinterCreate) -> PrinterConfig:
@@ -255,7 +247,7 @@ class KvRegistry:
 
     async def update(self, printer_id: str, patch: PrinterUpdate) -> PrinterConfig:
         """Edit a printer: compare-and-set on the revision it was read at."""
-        self._connected()
+        require_connected(self._nc, _NOT_READ)
         entries = await self._entries()
         printers = _configs(entries)
         updated = changes.update_printer(printers, printer_id, patch)
@@ -270,7 +262,7 @@ class KvRegistry:
     async def remove(self, printer_id: str) -> PrinterConfig:
         """Remove a printer: compare-and-set on the revision it was read at. Only its own
         key is read: no rule about the others applies (an edit's does)."""
-        self._connected()
+        require_connected(self._nc, _NOT_READ)
         found: dict[str, tuple[PrinterConfig, int]] = {}
         with _broker_answers(), contextlib.suppress(KeyNotFoundError):
             await self._apply(found, await self.kv.get(_key(printer_id)))
