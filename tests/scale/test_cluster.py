@@ -11,11 +11,12 @@ from pathlib import Path
 import nats.errors
 import pytest
 from nats.aio.client import Client
+from nats.js.api import ObjectStoreConfig
 
 from kybercore.errors import BrokerUnavailable
 from kybercore.registry.models import PrinterCreate
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.buckets import REPLICAS
+from kybercore.scale.buckets import REPLICAS, object_store
 from kybercore.scale.leases import SLOTS_BUCKET, Leases
 from kybercore.scale.registry import BUCKET, KvRegistry
 from kybercore.sim.stack import free_port
@@ -136,5 +137,11 @@ async def test_a_bucket_left_with_one_copy_on_a_cluster_is_pointed_out(
         await KvRegistry().open(nc)
         assert "nats stream edit KV_kc_registry --replicas 3" in caplog.text
         assert "KV_kc_secrets" not in caplog.text  # created now, with 3 copies
+        # An object store is opened for each upload: said once per connection, not each time.
+        config = ObjectStoreConfig(bucket="kc_test_files")
+        await nc.jetstream().create_object_store("kc_test_files", config)
+        for _ in range(3):
+            await object_store(nc, config)
+        assert caplog.text.count("nats stream edit OBJ_kc_test_files --replicas 3") == 1
     finally:
         await nc.close()

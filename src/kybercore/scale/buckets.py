@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import logging
 import time
+import weakref
 from collections.abc import Awaitable, Callable
 from typing import Any, Final, TypeVar
 
@@ -46,6 +47,8 @@ PLACE_RETRY: Final = 0.5
 WRONG_REVISION: Final = (10071, 10164)
 """JetStream's error codes for a compare-and-set on a revision that is not the key's."""
 T = TypeVar("T")
+_checked: weakref.WeakKeyDictionary[Client, set[str]] = weakref.WeakKeyDictionary()
+"""The object stores whose copies each connection has checked: they are opened per use."""
 
 
 async def _replicated(create: Callable[[int], Awaitable[T]], bucket: str) -> T:
@@ -124,7 +127,8 @@ async def lease_bucket(
 
 async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
     """The object store ``config.bucket``, created with ``config`` when absent. Looked up on
-    every use (they are rare, and the broker may have restarted)."""
+    every use (they are rare, and the broker may have restarted); its copies are checked
+    once per connection."""
     bucket = config.bucket
     assert bucket is not None
     js = nc.jetstream()
@@ -133,7 +137,10 @@ async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
     except NotFoundError:
         pass
     else:
-        await _check_copies(js, f"OBJ_{bucket}")
+        checked = _checked.setdefault(nc, set())
+        if bucket not in checked:
+            await _check_copies(js, f"OBJ_{bucket}")
+            checked.add(bucket)
         return store
 
     async def create(replicas: int) -> ObjectStore:
