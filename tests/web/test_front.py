@@ -5,6 +5,7 @@ printer page's live webcam."""
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -18,6 +19,11 @@ from tests.scale.cluster import Cluster, fresh_cluster
 from tests.web.support import expect_ready_tiles, open_fleet, tile
 
 pytestmark = pytest.mark.browser
+
+SAY_WITHIN_MS = 10_000
+"""nats-py notices a dead connection within ~2 pings of 2 s; the front checks 4 times a s."""
+BACK_WITHIN_MS = 60_000
+"""The front reconnects within a second; JetStream may take a few to recover."""
 
 
 @pytest.fixture
@@ -55,3 +61,27 @@ def test_the_overview_on_a_front_is_live_and_acts(
     expect(image).to_have_attribute("src", "/api/printers/fleet-b/webcams/kybercam/stream")
     wait_until(lambda: image.evaluate("i => i.naturalWidth") > 0, what="a first frame")
     expect(webcam.locator(".webcam-note")).to_have_text("")
+
+
+def test_a_front_cut_off_from_its_broker_says_so_once_for_the_fleet(
+    new_page: Callable[..., Page], cluster: Cluster
+) -> None:
+    # Every tile goes stale at once: one banner says it is the front that cannot hear the
+    # printers, not the printers that failed; a page opened meanwhile says it too.
+    page = new_page()
+    open_fleet(page, cluster.front.url)
+    expect_ready_tiles(page)
+    banner = page.locator("#broker-banner")
+    expect(banner).to_be_hidden()
+    cluster.broker.stop()
+    began = time.monotonic()
+    expect(banner).to_be_visible(timeout=SAY_WITHIN_MS)
+    print(f"banner shown {time.monotonic() - began:.2f} s after the broker stopped")
+    expect(banner).to_contain_text("lost its message broker (NATS)")
+    page.reload()
+    expect(banner).to_be_visible(timeout=SAY_WITHIN_MS)
+    expect(page.locator("#banner")).to_be_hidden()  # the page's own socket is fine
+    cluster.broker.start(port=cluster.broker.port)
+    expect(banner).to_be_hidden(timeout=BACK_WITHIN_MS)
+    wait_until(lambda: cluster.all_fresh(3), BACK_WITHIN_MS / 1000, "every printer fresh again")
+    expect_ready_tiles(page)

@@ -54,6 +54,8 @@ async def browser_socket(websocket: WebSocket, service: Service) -> None:
     await websocket.accept()
     hub = service.hub
     client = hub.connect(_view(websocket.query_params.get("view")))
+    if (cut_off := service.broker_frame()) is not None:
+        client.queue.put_nowait(orjson.dumps(cut_off))
     sender = asyncio.create_task(_send(websocket, client))
     receiver = asyncio.create_task(_receive(websocket, hub, client))
     guard = asyncio.create_task(_while_allowed(allowed))

@@ -97,6 +97,11 @@ class FleetService:
         """Whether the process is connected to its NATS broker; None: it has none (serve)."""
         return None
 
+    def broker_frame(self) -> dict[str, Any] | None:
+        """The frame a browser connecting now needs to learn this process is cut off from
+        its broker (None: it is not, or it has none)."""
+        return None
+
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:

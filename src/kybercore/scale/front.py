@@ -109,6 +109,8 @@ class FrontFleet(FleetService):
         self._watchers: tuple[Watcher, ...] = ()
         self.copy = FleetCopy(self._changed, self._patched, self.hub.event)
         self._asking: set[SlotRef] = set()
+        self._cut_off_since: float | None = None
+        """time() when this front noticed it lost the broker; None while connected."""
         self._tasks: list[asyncio.Task[Any]] = []
 
     async def start(self) -> None:
@@ -152,6 +154,12 @@ class FrontFleet(FleetService):
         """Whether this front is connected to the broker now (False before it started)."""
         return self._connection is not None and self._connection.is_connected
 
+    def broker_frame(self) -> dict[str, Any] | None:
+        """``{"type": "broker", "connected": false, "since": time()}`` while cut off."""
+        if self._cut_off_since is None:
+            return None
+        return {"type": "broker", "connected": False, "since": self._cut_off_since}
+
     # -- following -----------------------------------------------------------------------
 
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
@@ -179,6 +187,17 @@ class FrontFleet(FleetService):
             await asyncio.sleep(CHECK_SECONDS)
             for slot in self.copy.check(time.monotonic()):
                 self._ask_snapshot(slot)
+            self._follow_broker()
+
+    def _follow_broker(self) -> None:
+        # Said once for the whole fleet: every tile going stale at once reads as every
+        # printer failing, when it is this front that cannot hear them.
+        cut_off = not self._nc.is_connected
+        if cut_off == (self._cut_off_since is not None):
+            return
+        self._cut_off_since = time.time() if cut_off else None
+        log.warning("front: %s the NATS broker", "cut off from" if cut_off else "back on")
+        self.hub.event(self.broker_frame() or {"type": "broker", "connected": True})
 
     def _ask_snapshot(self, slot: SlotRef) -> None:
         if slot not in self._asking:

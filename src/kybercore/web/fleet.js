@@ -91,6 +91,7 @@ function liveStatusHandler() {
   $("banner-retry-now").addEventListener("click", reconnectNow);
   return (next) => {
     status = next;
+    if (next.state !== "live") brokerBanner.forget();
     if (next.state === "down") {
       wasDown = true;
       checkAccess();
@@ -99,6 +100,30 @@ function liveStatusHandler() {
     render();
   };
 }
+
+/**
+ * The banner shown while this KyberCore front is cut off from its NATS broker: every tile
+ * goes stale at once, which would read as every printer failing. The front says so after
+ * each snapshot while it lasts, so a lost socket forgets it.
+ */
+const brokerBanner = (() => {
+  let since = null;
+  const render = () => {
+    $("broker-banner").hidden = since === null;
+    if (since !== null) setText($("broker-since"), t("broker.lost", { time: new Date(since * 1000).toLocaleTimeString(getLang()) }));
+  };
+  onLangChange(render);
+  return {
+    onFrame(frame) {
+      since = frame.connected ? null : frame.since;
+      render();
+    },
+    forget() {
+      since = null;
+      render();
+    },
+  };
+})();
 
 /** A refused WebSocket looks like a dead server: ask whether a login is what is missing. */
 async function checkAccess() {
@@ -142,6 +167,7 @@ function onEvent(frame) {
   const name = printers.get(frame.printer)?.name || frame.printer;
   if (frame.type === "queue") refreshQueue();
   else if (frame.type === "gcode_response") onConsoleFrame(frame);
+  else if (frame.type === "broker") brokerBanner.onFrame(frame);
   else if (frame.type === "files") onFilesChanged(frame.printer);
   else if (frame.type === "connection" && frame.connection === "auth_failed") {
     toast({ kind: "error", title: name, message: `${t("notify.auth_failed")} ${frame.message || ""}`.trim() });

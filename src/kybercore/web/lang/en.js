@@ -95,6 +95,8 @@ export default {
   "banner.reconnecting": "Reconnecting…",
   "banner.since": "The data shown is from {time} and may be out of date.",
   "banner.retry_now": "Retry now",
+  "broker.lost": "This KyberCore server lost its message broker (NATS) at {time}.",
+  "broker.detail": "Printer states are as they were then, and actions are refused until it is back; the printers themselves may be fine. Check that nats-server is running and reachable.",
   "live.live": "Live",
   "live.connecting": "Connecting…",
   "live.down": "Disconnected",

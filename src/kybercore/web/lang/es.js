@@ -95,6 +95,8 @@ export default {
   "banner.reconnecting": "Reconectando…",
   "banner.since": "Los datos mostrados son de las {time} y pueden estar desactualizados.",
   "banner.retry_now": "Reintentar ahora",
+  "broker.lost": "Este servidor KyberCore perdió su bróker de mensajes (NATS) a las {time}.",
+  "broker.detail": "Los estados de las impresoras son los de ese momento y las acciones se rechazan hasta que vuelva; las impresoras pueden estar bien. Comprueba que nats-server esté en marcha y accesible.",
   "live.live": "En vivo",
   "live.connecting": "Conectando…",
   "live.down": "Desconectado",
