@@ -78,10 +78,13 @@ def test_a_front_cut_off_from_its_broker_says_so_once_for_the_fleet(
     expect(banner).to_be_visible(timeout=SAY_WITHIN_MS)
     print(f"banner shown {time.monotonic() - began:.2f} s after the broker stopped")
     expect(banner).to_contain_text("lost its message broker (NATS)")
+    cut_off = re.compile(r"\bis-cut-off\b")  # the tiles dimmed, as for a lost socket
+    expect(page.locator("body")).to_have_class(cut_off)
     page.reload()
     expect(banner).to_be_visible(timeout=SAY_WITHIN_MS)
     expect(page.locator("#banner")).to_be_hidden()  # the page's own socket is fine
     cluster.broker.start(port=cluster.broker.port)
     expect(banner).to_be_hidden(timeout=BACK_WITHIN_MS)
+    expect(page.locator("body")).not_to_have_class(cut_off)
     wait_until(lambda: cluster.all_fresh(3), BACK_WITHIN_MS / 1000, "every printer fresh again")
     expect_ready_tiles(page)

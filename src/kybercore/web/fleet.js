@@ -110,6 +110,7 @@ const brokerBanner = (() => {
   let since = null;
   const render = () => {
     $("broker-banner").hidden = since === null;
+    document.body.classList.toggle("is-cut-off", since !== null);
     if (since !== null) setText($("broker-since"), t("broker.lost", { time: new Date(since * 1000).toLocaleTimeString(getLang()) }));
   };
   onLangChange(render);
