@@ -114,6 +114,8 @@ def test_roles_decide_what_each_token_may_do(
         "name": None,
         "role": None,
     }
+    # A load balancer's check carries no token: readiness is all it is told.
+    assert httpx.get(f"{url}/api/ready").json() == {"ready": True}
     anonymous = httpx.get(f"{url}/api/printers")
     assert anonymous.status_code == 401
     assert "kybercore tokens create" in anonymous.json()["error"]["message"]

@@ -1,5 +1,5 @@
-"""The whole fleet: ``/api/health`` and ``/api/fleet/actions``, one action (or its dry
-run) on several printers at once, with one result per printer.
+"""The whole fleet: ``/api/health``, ``/api/ready`` and ``/api/fleet/actions``, one action
+(or its dry run) on several printers at once, with one result per printer.
 """
 
 from __future__ import annotations
@@ -18,11 +18,12 @@ from kybercore.api.models import (
     FleetActionResult,
     FleetCheckResult,
     Health,
+    Ready,
     action_result,
     check_result,
 )
 from kybercore.core.messages import Reason
-from kybercore.errors import KyberCoreError
+from kybercore.errors import BrokerUnavailable, KyberCoreError
 from kybercore.fleet.actions import failed_outcome, reason_dict
 
 router = APIRouter()
@@ -42,6 +43,19 @@ async def health(service: Service) -> dict[str, Any]:
         "config_error": service.config_error,
         "broker": None if connected is None else "connected" if connected else "disconnected",
     }
+
+
+@router.get("/api/ready", response_model=Ready, responses=ERROR_RESPONSES)
+async def ready(service: Service) -> dict[str, bool]:
+    """Whether this process can serve the fleet now, for a load balancer or an orchestrator
+    choosing among fronts: 503 ``broker_unavailable`` while a front is cut off from NATS.
+    Needs no credential, as such checks carry none; it tells nothing else."""
+    if service.broker_connected is False:
+        raise BrokerUnavailable(
+            "This KyberCore front is not connected to the NATS broker: its printers' states "
+            "are stale and their actions are refused. Use another front until it is back."
+        )
+    return {"ready": True}
 
 
 @router.post(

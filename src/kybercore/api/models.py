@@ -380,6 +380,12 @@ class Health(BaseModel):
     )
 
 
+class Ready(BaseModel):
+    """This process can serve the fleet now (a load balancer's check)."""
+
+    ready: Literal[True]
+
+
 class FileItem(BaseModel):
     """A G-code file on a printer."""
 
