@@ -51,6 +51,7 @@ from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdat
 from kybercore.registry.store import PrinterRegistry, read_printers
 from kybercore.scale.broker import connect
 from kybercore.scale.commands import send_command
+from kybercore.scale.cut_off import STALE_MESSAGE, CutOff
 from kybercore.scale.follow import STALE_SECONDS, FleetCopy
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import SlotRef, slot_of
@@ -72,11 +73,6 @@ log = logging.getLogger(__name__)
 
 CHECK_SECONDS: Final = 0.25
 SNAPSHOT_TIMEOUT: Final = 2.0
-_CUT_OFF: Final = (
-    "This KyberCore front has lost its connection to the NATS broker: the last state it "
-    "received is shown, and updates come again once the broker is back. The printer itself "
-    "may be fine."
-)
 
 Watcher = Callable[[str, dict[str, Any] | None], None]
 """Told ``(printer id, patch)`` for each patch applied to a printer's view, and
@@ -109,8 +105,7 @@ class FrontFleet(FleetService):
         self._watchers: tuple[Watcher, ...] = ()
         self.copy = FleetCopy(self._changed, self._patched, self.hub.event)
         self._asking: set[SlotRef] = set()
-        self._cut_off_since: float | None = None
-        """time() when this front noticed it lost the broker; None while connected."""
+        self.cut_off = CutOff(self.hub.event)
         self._tasks: list[asyncio.Task[Any]] = []
 
     async def start(self) -> None:
@@ -155,10 +150,8 @@ class FrontFleet(FleetService):
         return self._connection is not None and self._connection.is_connected
 
     def broker_frame(self) -> dict[str, Any] | None:
-        """``{"type": "broker", "connected": false, "since": time()}`` while cut off."""
-        if self._cut_off_since is None:
-            return None
-        return {"type": "broker", "connected": False, "since": self._cut_off_since}
+        """The ``broker`` event while this front is cut off (:mod:`.cut_off`)."""
+        return self.cut_off.frame()
 
     # -- following -----------------------------------------------------------------------
 
@@ -187,17 +180,7 @@ class FrontFleet(FleetService):
             await asyncio.sleep(CHECK_SECONDS)
             for slot in self.copy.check(time.monotonic()):
                 self._ask_snapshot(slot)
-            self._follow_broker()
-
-    def _follow_broker(self) -> None:
-        # Said once for the whole fleet: every tile going stale at once reads as every
-        # printer failing, when it is this front that cannot hear them.
-        cut_off = not self._nc.is_connected
-        if cut_off == (self._cut_off_since is not None):
-            return
-        self._cut_off_since = time.time() if cut_off else None
-        log.warning("front: %s the NATS broker", "cut off from" if cut_off else "back on")
-        self.hub.event(self.broker_frame() or {"type": "broker", "connected": True})
+            self.cut_off.follow(self._nc.is_connected)
 
     def _ask_snapshot(self, slot: SlotRef) -> None:
         if slot not in self._asking:
@@ -268,7 +251,7 @@ class FrontFleet(FleetService):
                 f"No news from the KyberCore worker holding this printer for over "
                 f"{STALE_SECONDS:.0f} s; another worker takes it over shortly."
                 if self.broker_connected
-                else _CUT_OFF
+                else STALE_MESSAGE
             )
             return {**view, "connection": "stale", "connection_error": message}
         return view
