@@ -12,11 +12,13 @@ def test_each_change_is_told_once_and_a_late_browser_gets_the_frame() -> None:
     told: list[dict[str, Any]] = []
     cut_off = CutOff(told.append)
     cut_off.follow(True)
-    assert told == [] and cut_off.frame() is None
+    assert told == []
+    assert cut_off.frame() is None
     cut_off.follow(False)
     cut_off.follow(False)  # checked 4 times a second: still one event
     assert len(told) == 1
-    assert told[0]["type"] == "broker" and told[0]["connected"] is False
+    assert told[0]["type"] == "broker"
+    assert told[0]["connected"] is False
     assert cut_off.frame() == told[0]  # what a browser connecting now gets
     cut_off.follow(True)
     assert told[1:] == [{"type": "broker", "connected": True}]
