@@ -36,7 +36,9 @@ NatsUrl = Annotated[
     typer.Option(
         "--nats",
         envvar="KYBERCORE_NATS",
-        help="The NATS server (nats://host:4222), JetStream on; a cluster's, separated by commas.",
+        help="The NATS server (nats://host:4222), JetStream on; a cluster's, separated by "
+        "commas; a site's leaf node, then its hub's JetStream domain: "
+        "nats://site-leaf:4222?js_domain=hub.",
     ),
 ]
 Slots = Annotated[

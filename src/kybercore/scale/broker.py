@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import re
 import shutil
 import subprocess
 import sys
@@ -17,13 +18,14 @@ import tempfile
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 from urllib.parse import urlsplit
 
-import nats
 from nats.aio.client import Client
+from nats.js import JetStreamContext
+from nats.js.api import PubAck
 
-from kybercore.errors import BrokerUnavailable, LaunchError
+from kybercore.errors import BrokerUnavailable, ConfigError, LaunchError
 
 PING_SECONDS: Final = 2.0
 """A dead connection is noticed within ~2 pings (nats-py's default: 120 s each)."""
@@ -32,28 +34,90 @@ ERROR_EVERY: Final = 10.0
 log = logging.getLogger(__name__)
 
 
+DOMAIN_OPTION: Final = "js_domain"
+"""``nats://site-leaf:4222?js_domain=hub``: JetStream is the hub's, across a leaf node."""
+_DOMAIN = re.compile(rf"{DOMAIN_OPTION}=([A-Za-z0-9_-]{{1,64}})")
+
+
 def servers(url: str) -> list[str]:
     """The servers in ``url``: one, or a cluster's, separated by commas."""
-    return [server.strip() for server in url.split(",") if server.strip()]
+    address = url.partition("?")[0]
+    return [server.strip() for server in address.split(",") if server.strip()]
+
+
+def jetstream_domain(url: str) -> str | None:
+    """The JetStream domain ``url`` names after a ``?`` (``js_domain=hub``), else None:
+    that server's own JetStream. ConfigError for anything else there."""
+    query = url.partition("?")[2]
+    if not query:
+        return None
+    if named := _DOMAIN.fullmatch(query):
+        return named[1]
+    raise ConfigError(
+        f"'{url}' is not a NATS address KyberCore understands: after the servers, only "
+        f"'?{DOMAIN_OPTION}=<the hub's JetStream domain>' may follow (letters, digits, '-' "
+        "and '_'), for a leaf node whose JetStream is its hub's."
+    )
+
+
+class _DomainJetStream(JetStreamContext):
+    """JetStream in ``domain``, the hub's, from a client of a leaf node. nats-py sends the
+    API through the domain's prefix but a key-value write to ``$KV.<bucket>.<key>``, which
+    the leaf link does not carry; the hub maps ``$JS.<domain>.API.$KV.>`` onto it, as
+    nats.go's key-value writes use. (Object-store writes do cross as they are.)"""
+
+    def __init__(self, nc: Client, domain: str, **options: Any) -> None:
+        super().__init__(nc, domain=domain, **options)
+        self._write_prefix = f"$JS.{domain}.API."
+
+    async def publish(
+        self,
+        subject: str,
+        payload: bytes = b"",
+        timeout: float | None = None,
+        stream: str | None = None,
+        headers: dict[str, Any] | None = None,
+        msg_ttl: float | None = None,
+    ) -> PubAck:
+        if subject.startswith("$KV."):
+            subject = self._write_prefix + subject
+        return await super().publish(subject, payload, timeout, stream, headers, msg_ttl)
+
+
+class _Client(Client):
+    """nats-py's client, its ``jetstream()`` in ``domain`` when one is given."""
+
+    def __init__(self, domain: str | None) -> None:
+        super().__init__()
+        self._domain = domain
+
+    def jetstream(self, **options: Any) -> JetStreamContext:
+        if self._domain is None:
+            return super().jetstream(**options)
+        return _DomainJetStream(self, self._domain, **options)
 
 
 async def connect(url: str, name: str) -> Client:
-    """A connection to ``url`` (one server, or several of a cluster separated by commas)
-    that, once made, reconnects forever (half a second apart), to any of them.
+    """A connection to ``url`` (one server, or several of a cluster separated by commas,
+    then perhaps ``?js_domain=hub``: see :func:`jetstream_domain`) that, once made,
+    reconnects forever (half a second apart), to any of them.
 
     A broker that is not there at the start is an :class:`OSError` at once: nats-py would
     retry the first connection forever too, printing a traceback each time."""
+    nc = _Client(jetstream_domain(url))
     await reachable(url)
-    return await nats.connect(
+    # Seconds as floats, which nats-py takes though it annotates them as int.
+    timing: dict[str, Any] = {"reconnect_time_wait": 0.5, "ping_interval": PING_SECONDS}
+    await nc.connect(
         servers(url),
         name=name,
         max_reconnect_attempts=-1,
-        reconnect_time_wait=0.5,
-        ping_interval=PING_SECONDS,
         max_outstanding_pings=2,
         connect_timeout=5,
         error_cb=_errors(url),
+        **timing,
     )
+    return nc
 
 
 def require_connected(nc: Client | None, consequence: str) -> None:
@@ -114,9 +178,13 @@ def server_binary() -> Path:
 class LocalServer:
     """A nats-server with JetStream on a free loopback port, its data in ``folder``."""
 
-    def __init__(self, folder: Path | None = None, *extra_args: str) -> None:
-        """``extra_args``: more of nats-server's options (a cluster's, in the tests)."""
+    def __init__(
+        self, folder: Path | None = None, *extra_args: str, jetstream: bool = True
+    ) -> None:
+        """``extra_args``: more of nats-server's options (a cluster's, in the tests);
+        ``jetstream``: False for a leaf node that uses its hub's."""
         self._extra_args = extra_args
+        self._jetstream = jetstream
         self._temp = None if folder else tempfile.TemporaryDirectory(prefix="kc-nats-")
         self.folder = folder or Path(self._temp.name if self._temp else ".")
         self._proc: subprocess.Popen[bytes] | None = None
@@ -134,9 +202,9 @@ class LocalServer:
         shutil.rmtree(ports_dir, ignore_errors=True)
         ports_dir.mkdir()
         command = [
-            str(server_binary()), "-a", "127.0.0.1", "-p", str(port or -1), "-js",
-            "-sd", str(self.folder / "js"), "--ports_file_dir", str(ports_dir),
-            *self._extra_args,
+            str(server_binary()), "-a", "127.0.0.1", "-p", str(port or -1),
+            *(("-js", "-sd", str(self.folder / "js")) if self._jetstream else ()),
+            "--ports_file_dir", str(ports_dir), *self._extra_args,
         ]  # fmt: skip
         log = (self.folder / "nats-server.log").open("ab")
         self._proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
@@ -176,4 +244,3 @@ class LocalServer:
 def _client_port(ports_json: str) -> int:
     nats_urls = json.loads(ports_json)["nats"]
     return int(str(nats_urls[0]).rsplit(":", 1)[1])
-

@@ -26,6 +26,7 @@ from nats.js.errors import (
     BucketNotFoundError,
     KeyWrongLastSequenceError,
     NotFoundError,
+    ServiceUnavailableError,
 )
 from nats.js.kv import KeyValue
 from nats.js.object_store import ObjectStore
@@ -46,6 +47,12 @@ PLACE_WITHIN: Final = 30.0
 PLACE_RETRY: Final = 0.5
 WRONG_REVISION: Final = (10071, 10164)
 """JetStream's error codes for a compare-and-set on a revision that is not the key's."""
+NO_JETSTREAM: Final = (
+    "No JetStream answered through the NATS server. Start nats-server with JetStream (-js); "
+    "if this is a site's leaf node whose JetStream is its hub's, add ?js_domain=<the hub's "
+    "domain> to KyberCore's NATS address (--nats). A cluster that has just started elects "
+    "its JetStream leader within seconds: then try again."
+)
 T = TypeVar("T")
 _checked: weakref.WeakKeyDictionary[Client, set[str]] = weakref.WeakKeyDictionary()
 """The object stores whose copies each connection has checked: they are opened per use."""
@@ -90,11 +97,14 @@ async def _check_copies(js: JetStreamContext, stream: str) -> None:
 
 async def key_value(js: JetStreamContext, bucket: str, **config: Any) -> KeyValue:
     """The key-value ``bucket``, created with ``config`` (nats-py's KeyValueConfig fields)
-    when there is none."""
+    when there is none. Every process opens one of these first, so a JetStream that does not
+    answer is said here (BrokerUnavailable)."""
     try:
         kv = await js.key_value(bucket)
     except BucketNotFoundError:
         pass
+    except ServiceUnavailableError as exc:
+        raise BrokerUnavailable(NO_JETSTREAM) from exc
     else:
         await _check_copies(js, f"KV_{bucket}")
         return kv
