@@ -146,8 +146,10 @@ class FrontFleet(FleetService):
 
     @property
     def broker_connected(self) -> bool | None:
-        """Whether this front is connected to the broker now (False before it started)."""
-        return self._connection is not None and self._connection.is_connected
+        """Whether this front is connected to the broker, as it last noticed (4 times a
+        second; False before it started). Health, readiness, metrics, the stale tiles'
+        message and the browsers' banner all read this one state (:mod:`.cut_off`)."""
+        return self._connection is not None and self.cut_off.since is None
 
     def broker_frame(self) -> dict[str, Any] | None:
         """The ``broker`` event while this front is cut off (:mod:`.cut_off`)."""
