@@ -331,3 +331,5 @@ def _logging(level: str) -> None:
         level=level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     logging.getLogger("httpx").setLevel(logging.WARNING)
+    # Alembic 1.20 announces each of its plugins at import, a worker's first lines otherwise.
+    logging.getLogger("alembic.runtime.plugins").setLevel(logging.WARNING)
