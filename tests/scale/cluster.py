@@ -167,3 +167,10 @@ class Cluster:
         self.front.stop()
         for worker in self.workers.values():
             worker.stop()
+
+
+def moonraker_sockets(stack: PrinterStack) -> int:
+    """The WebSocket connections Moonraker holds (a KyberCore session is one)."""
+    stats = httpx.get(f"{stack.url}/machine/proc_stats", timeout=10).json()["result"]
+    count: int = stats["websocket_connections"]
+    return count

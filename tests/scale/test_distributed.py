@@ -18,7 +18,14 @@ from kybercore.scale.broker import LocalServer
 from kybercore.scale.slots import slot_of
 from kybercore.sim.stack import PrinterStack
 from tests.helpers import wait_until
-from tests.scale.cluster import SETTLE, SLOTS, TTL, Cluster, two_workers_and_a_front
+from tests.scale.cluster import (
+    SETTLE,
+    SLOTS,
+    TTL,
+    Cluster,
+    moonraker_sockets,
+    two_workers_and_a_front,
+)
 from tests.scale.replay import no_overlap
 
 # A dead worker's printers are fresh again within TTL + TTL/3 + a Moonraker connect; the
@@ -191,7 +198,7 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
     url = cluster.front.url
     stack_c = fleet_stacks[2]
     # The suite's other KyberCore processes may hold sockets to it too: count the change.
-    held = _sockets(stack_c)
+    held = moonraker_sockets(stack_c)
     moved = httpx.patch(f"{url}/api/printers/fleet-c", json={"site": "lab-b"}, timeout=30)
     assert moved.status_code == 200, moved.text
     # No worker of lab-b yet: the default site's owner lets it go, and the front says
@@ -202,7 +209,8 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
         "fleet-c waiting for a lab-b worker",
     )
     assert _view(cluster, "fleet-c")["connection"] == "connecting"
-    wait_until(lambda: _sockets(stack_c) == held - 1, SETTLE, "the cluster's session closed")
+    closed = "the cluster's session closed"
+    wait_until(lambda: moonraker_sockets(stack_c) == held - 1, SETTLE, closed)
     gcode = {"script": "M115"}
     no_owner = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
     assert no_owner.status_code == 503, no_owner.text
@@ -213,7 +221,7 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
     assert _view(cluster, "fleet-c")["site"] == "lab-b"
     assert len(b1.owned()) == SLOTS
     assert len(cluster.workers["w1"].owned()) == len(cluster.workers["w2"].owned()) == SLOTS // 2
-    assert _sockets(stack_c) == held  # connected once again, from its site
+    assert moonraker_sockets(stack_c) == held  # connected once again, from its site
     answer = httpx.post(f"{url}/api/printers/fleet-c/gcode", json=gcode, timeout=30)
     assert answer.status_code == 200, answer.text
     assert any("FIRMWARE_NAME" in line for line in answer.json()["response"])
@@ -221,10 +229,3 @@ def test_a_printer_moved_to_a_site_is_held_by_that_sites_worker_only(
 
 def _view(cluster: Cluster, printer_id: str) -> dict[str, Any]:
     return next(v for v in cluster.views() if v["id"] == printer_id)
-
-
-def _sockets(stack: PrinterStack) -> int:
-    """The WebSocket connections Moonraker holds (KyberCore's session is one)."""
-    stats = httpx.get(f"{stack.url}/machine/proc_stats", timeout=10).json()["result"]
-    count: int = stats["websocket_connections"]
-    return count

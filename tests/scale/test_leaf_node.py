@@ -5,8 +5,11 @@ hub and leaf node (two nats-servers linked), real workers, front and printers.""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hashlib
 import io
+import json
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -19,9 +22,11 @@ import pytest
 from kybercore.errors import BrokerUnavailable, ConfigError
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
-from kybercore.scale.broker import LocalServer, connect, jetstream_domain, servers
+from kybercore.scale.broker import LocalServer, connect, jetstream, jetstream_domain, servers
 from kybercore.scale.buckets import NO_JETSTREAM, key_value, wrong_revision
 from kybercore.scale.jobfiles import JobFileBucket
+from kybercore.scale.leases import SLOTS_BUCKET
+from kybercore.scale.slots import slot_key
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.helpers import KyberCoreServer, wait_for, wait_until
 from tests.scale.cluster import SETTLE, SLOTS, TTL, WorkerProcess
@@ -31,18 +36,24 @@ LINKED_WITHIN = 30.0
 """A leaf node links to its hub within a second; a busy machine may take longer."""
 
 
-@pytest.fixture
-def hub_and_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
-    """A hub with JetStream in domain ``hub``, and a leaf node without JetStream linked to it."""
+@contextlib.contextmanager
+def linked_servers(
+    folder: Path, leaf_domain: str | None
+) -> Iterator[tuple[LocalServer, LocalServer]]:
+    """A hub with JetStream in domain ``hub``, and a leaf node linked to it: with JetStream
+    of its own in ``leaf_domain``, or none."""
     link = free_port()
-    hub_conf = tmp_path / "hub.conf"
+    hub_conf = folder / "hub.conf"
     hub_conf.write_text(
         f"jetstream {{ domain: {DOMAIN} }}\nleafnodes {{ listen: 127.0.0.1:{link} }}\n"
     )
-    leaf_conf = tmp_path / "leaf.conf"
-    leaf_conf.write_text(f'leafnodes {{ remotes: [{{ url: "nats-leaf://127.0.0.1:{link}" }}] }}\n')
-    hub = LocalServer(tmp_path / "hub", "-c", str(hub_conf))
-    leaf = LocalServer(tmp_path / "leaf", "-c", str(leaf_conf), jetstream=False)
+    leaf_conf = folder / "leaf.conf"
+    leaf_conf.write_text(
+        (f"jetstream {{ domain: {leaf_domain} }}\n" if leaf_domain else "")
+        + f'leafnodes {{ remotes: [{{ url: "nats-leaf://127.0.0.1:{link}" }}] }}\n'
+    )
+    hub = LocalServer(folder / "hub", "-c", str(hub_conf))
+    leaf = LocalServer(folder / "leaf", "-c", str(leaf_conf), jetstream=leaf_domain is not None)
     hub.start()
     try:
         leaf.start()
@@ -50,6 +61,20 @@ def hub_and_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
     finally:
         leaf.close()
         hub.close()
+
+
+@pytest.fixture
+def hub_and_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
+    """A hub, and a leaf node without JetStream (a site's workers use the hub's)."""
+    with linked_servers(tmp_path, None) as servers_:
+        yield servers_
+
+
+@pytest.fixture
+def hub_and_site_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
+    """A hub, and a leaf node with JetStream of its own, in domain ``lab-b``."""
+    with linked_servers(tmp_path, "lab-b") as servers_:
+        yield servers_
 
 
 def site_url(leaf: LocalServer) -> str:
@@ -117,41 +142,99 @@ async def test_buckets_written_through_a_leaf_node_are_the_hubs(
         await central.close()
 
 
+@contextlib.contextmanager
+def site_lab_b(
+    hub: LocalServer, leaf: LocalServer, stacks: list[PrinterStack], folder: Path, *args: str
+) -> Iterator[tuple[KyberCoreServer, WorkerProcess]]:
+    """``stacks`` as site lab-b's printers: a front on the hub, and the site's worker b1 on
+    its leaf node (``args``: more of its options); yields once b1 holds every slot of the
+    site and the front shows every printer fresh."""
+    printers = [
+        PrinterConfig(id=s.options.name, name=s.options.name, site="lab-b", moonraker_url=s.url)
+        for s in stacks
+    ]
+    write_printers(folder / "printers.json", printers)
+    front = KyberCoreServer(
+        folder / "printers.json", free_port(), "--nats", hub.url, "--slots", str(SLOTS),
+        "--lease-ttl", str(TTL), command="front",
+    )  # fmt: skip
+    front.start()
+    site_worker = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
+    try:
+        wait_until(lambda: len(site_worker.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
+        wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh on the hub")
+        yield front, site_worker
+    finally:
+        site_worker.stop()
+        front.stop()
+
+
+def fresh(front: KyberCoreServer) -> int:
+    """How many printers the front shows online and ready, reported by a live owner."""
+    views = httpx.get(f"{front.url}/api/printers", timeout=10).json()
+    return sum(v["connection"] == "online" and v["klippy_state"] == "ready" for v in views)
+
+
+def firmware(front: KyberCoreServer, printer_id: str) -> bool:
+    """Whether an M115 sent through the front came back from the printer."""
+    answer = httpx.post(
+        f"{front.url}/api/printers/{printer_id}/gcode", json={"script": "M115"}, timeout=30
+    )
+    assert answer.status_code == 200, answer.text
+    return any("FIRMWARE_NAME" in line for line in answer.json()["response"])
+
+
 def test_a_site_worker_on_a_leaf_node_holds_and_drives_its_printers(
     hub_and_leaf: tuple[LocalServer, LocalServer],
     fleet_stacks: list[PrinterStack],
     tmp_path: Path,
 ) -> None:
-    hub, leaf = hub_and_leaf
-    printers = [
-        PrinterConfig(id=s.options.name, name=s.options.name, site="lab-b", moonraker_url=s.url)
-        for s in fleet_stacks
-    ]
-    write_printers(tmp_path / "printers.json", printers)
-    front = KyberCoreServer(
-        tmp_path / "printers.json", free_port(), "--nats", hub.url, "--slots", str(SLOTS),
-        "--lease-ttl", str(TTL), command="front",
-    )  # fmt: skip
-    front.start()
-    site_worker = WorkerProcess("b1", site_url(leaf), tmp_path, "--site", "lab-b")
-    try:
-        # Its leases are written through the leaf node: it holds every slot of its site.
-        wait_until(lambda: len(site_worker.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
+    # Its leases are written through the leaf node: it holds every slot of its site, and
+    # the front on the hub shows its printers and drives them.
+    with site_lab_b(*hub_and_leaf, fleet_stacks, tmp_path) as (front, _):
+        assert firmware(front, fleet_stacks[0].options.name)
 
-        def fresh() -> int:
-            views = httpx.get(f"{front.url}/api/printers", timeout=10).json()
-            return sum(v["connection"] == "online" and v["klippy_state"] == "ready" for v in views)
 
-        wait_until(lambda: fresh() == len(fleet_stacks), 60, "every printer fresh on the hub")
-        printer = fleet_stacks[0].options.name
-        answer = httpx.post(
-            f"{front.url}/api/printers/{printer}/gcode", json={"script": "M115"}, timeout=30
-        )
-        assert answer.status_code == 200, answer.text
-        assert any("FIRMWARE_NAME" in line for line in answer.json()["response"])
-    finally:
-        site_worker.stop()
-        front.stop()
+def lease_revision(leaf: LocalServer, key: str) -> int:
+    """The revision of ``key`` in the leaf node's own ``kc_slots`` (each renewal adds one)."""
+
+    async def read() -> int:
+        nc = await connect(leaf.url, "reader")
+        try:
+            kv = await jetstream(nc, local=True).key_value(SLOTS_BUCKET)
+            return (await kv.get(key)).revision
+        finally:
+            await nc.close()
+
+    return asyncio.run(read())
+
+
+def test_a_site_keeping_its_leases_on_its_leaf_node_holds_its_printers_through_a_cut(
+    hub_and_site_leaf: tuple[LocalServer, LocalServer],
+    fleet_stacks: list[PrinterStack],
+    tmp_path: Path,
+) -> None:
+    hub, leaf = hub_and_site_leaf
+    with site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker):
+        # The cut, as the site sees it: the hub gone. The worker renews its leases at its
+        # own leaf node, TTL/3 apart; past two TTLs it still holds every printer.
+        key = slot_key(0, "lab-b")
+        seen = {lease_revision(leaf, key)}
+
+        def renewed_for_two_ttls() -> bool:
+            seen.add(lease_revision(leaf, key))
+            return len(seen) > round(2 * TTL / (TTL / 3))
+
+        hub.stop()
+        wait_until(renewed_for_two_ttls, SETTLE, "renewals for 2 TTLs at the leaf node")
+        assert len(worker.owned()) == SLOTS
+        # The hub back: the front has the site's printers again, from the same owner.
+        hub.start(port=hub.port)
+        wait_until(lambda: fresh(front) == len(fleet_stacks), 60, "every printer fresh again")
+        assert firmware(front, fleet_stacks[1].options.name)
+        drops = [e for e in map(json.loads, worker.leases_log.read_text().splitlines())
+                 if e["ev"] != "own"]  # fmt: skip
+        assert drops == []
 
 
 def test_a_worker_on_a_leaf_node_without_the_domain_says_what_to_add(

@@ -81,6 +81,15 @@ def ingest(
             show_default=False,
         ),
     ] = None,
+    local_leases: Annotated[
+        bool,
+        typer.Option(
+            "--local-leases",
+            help="Keep this site's leases in the JetStream of the NATS server given, a site's "
+            "leaf node with JetStream of its own (its --nats names the hub's domain for the "
+            "rest): a cut between the site and the hub then leaves its printers held.",
+        ),
+    ] = False,
     log_level: LogLevel = "info",
 ) -> None:
     """Run an ingest worker: own a share of the printers, hold their Moonraker sessions,
@@ -97,7 +106,11 @@ def ingest(
                 "32 characters, starting with a letter or digit."
             )
         where.mkdir(parents=True, exist_ok=True)
-        _run_loop(_ingest(nats_url, name, slots, site, lease_ttl, grace, where, database_url))
+        _run_loop(
+            _ingest(
+                nats_url, name, slots, site, lease_ttl, grace, where, database_url, local_leases
+            )
+        )
     except KyberCoreError as exc:
         raise fail(exc.message) from None
     except OSError as exc:
@@ -122,7 +135,7 @@ def _run_loop(main: Coroutine[Any, Any, None]) -> None:
 
 async def _ingest(
     url: str, name: str, slots: int, site: str, ttl: float, grace: float, folder: Path,
-    database: str | None,
+    database: str | None, local_leases: bool,
 ) -> None:  # fmt: skip
     from kybercore.db import open_database
     from kybercore.moonraker.http import new_http_client
@@ -134,7 +147,7 @@ async def _ingest(
     async with new_http_client() as http:
         worker = Worker(
             nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, site=site,
-            grace=grace, database=engine,
+            grace=grace, database=engine, local_leases=local_leases,
         )
         await worker.start()
         where = f" for site '{site}'" if site else ""

@@ -97,6 +97,12 @@ class _Client(Client):
         return _DomainJetStream(self, self._domain, **options)
 
 
+def jetstream(nc: Client, *, local: bool = False) -> JetStreamContext:
+    """``nc``'s JetStream: the one its address names (:func:`jetstream_domain`), or with
+    ``local`` the connected server's own, a site's leaf node with JetStream of its own."""
+    return JetStreamContext(nc) if local else nc.jetstream()
+
+
 async def connect(url: str, name: str) -> Client:
     """A connection to ``url`` (one server, or several of a cluster separated by commas,
     then perhaps ``?js_domain=hub``: see :func:`jetstream_domain`) that, once made,

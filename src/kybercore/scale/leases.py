@@ -48,6 +48,7 @@ from nats.js.errors import (
 from nats.js.kv import KeyValue
 
 from kybercore.aio import cancel_and_wait
+from kybercore.scale.broker import jetstream
 from kybercore.scale.buckets import bucket_keys, lease_bucket, wrong_revision
 from kybercore.scale.renewer import LOOP_GRACE, Renewer
 from kybercore.scale.slots import DEFAULT_SITE, fair_share, site_token, slot_key
@@ -90,9 +91,11 @@ class Leases:
     def __init__(
         self, nc: Client, worker: str, *, url: str, slots: int, ttl: float,
         site: str = DEFAULT_SITE, log_path: Path | None = None,
-        on_change: Change | None = None,
+        on_change: Change | None = None, local: bool = False,
     ) -> None:  # fmt: skip
-        """``url``: the broker's, for the renewals' own connection; ``site``: whose slots."""
+        """``url``: the broker's, for the renewals' own connection; ``site``: whose slots;
+        ``local``: the leases are kept in the connected server's own JetStream, a site's
+        leaf node's, so a cut from the hub leaves them held (README "Sites")."""
         self._nc = nc
         self._url = url
         self.worker = worker
@@ -104,7 +107,8 @@ class Leases:
         self._log_path = log_path
         self._on_change = on_change
         self._held: dict[int, Held] = {}
-        self._js = nc.jetstream()
+        self._local = local
+        self._js = jetstream(nc, local=local)
         self._kv: KeyValue | None = None
         self._workers: KeyValue | None = None
         self._task: asyncio.Task[None] | None = None
@@ -167,7 +171,7 @@ class Leases:
         # (a test counts them by wrapping them).
         renewer = Renewer(
             self._url, f"{self.worker}-leases", SLOTS_BUCKET, self.ttl / 3,
-            lambda kv: self.renew(kv), self._loop_alive,
+            lambda kv: self.renew(kv), self._loop_alive, local=self._local,
         )  # fmt: skip
         ticking = asyncio.create_task(self._tick())
         try:

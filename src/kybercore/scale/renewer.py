@@ -28,7 +28,7 @@ from typing import Final
 from nats.aio.client import Client
 from nats.js.kv import KeyValue
 
-from kybercore.scale.broker import connect
+from kybercore.scale.broker import connect, jetstream
 
 log = logging.getLogger(__name__)
 
@@ -46,9 +46,11 @@ class Renewer:
 
     def __init__(
         self, url: str, name: str, bucket: str, every: float,
-        renew: Renew, alive: Callable[[], bool],
+        renew: Renew, alive: Callable[[], bool], *, local: bool = False,
     ) -> None:  # fmt: skip
+        """``local``: the bucket is in the connected server's own JetStream (:func:`jetstream`)."""
         self._url = url
+        self._local = local
         self._name = name
         self._bucket = bucket
         self._every = every
@@ -95,7 +97,7 @@ class Renewer:
                     if nc is None:
                         nc = await connect(self._url, self._name)
                     if kv is None:
-                        kv = await nc.jetstream().key_value(self._bucket)
+                        kv = await jetstream(nc, local=self._local).key_value(self._bucket)
                     if self._alive():
                         await self._renew(kv)
                     else:

@@ -86,12 +86,14 @@ class Worker:
         grace: float = GRACE_SECONDS,
         connect: Connect = picows.ws_connect,
         database: AsyncEngine | None = None,
+        local_leases: bool = False,
     ) -> None:
         """``url``: the broker's (``nc``'s), for the lease renewals' own connection.
         ``site``: the worker holds the printers of this site only (:mod:`.slots`).
         ``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
         (the one the fronts read), the worker keeps the ledger of the printers it acts
-        for: their job history and state timeline."""
+        for: their job history and state timeline. ``local_leases``: its leases are kept in
+        the JetStream of the server it connects to, a site's leaf node (:mod:`.leases`)."""
         self._nc = nc
         self.worker_id = worker_id
         self.slots = slots
@@ -105,7 +107,7 @@ class Worker:
         )
         self.leases = Leases(
             nc, worker_id, url=url, slots=slots, ttl=ttl, site=site,
-            log_path=folder / "leases.jsonl", on_change=self._lease_changed,
+            log_path=folder / "leases.jsonl", on_change=self._lease_changed, local=local_leases,
         )  # fmt: skip
         self.commands = CommandRunner(
             self.service, self._epoch_of, uploads=Uploads(nc), jobfiles=JobFileBucket(nc),
