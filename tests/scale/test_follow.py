@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from kybercore.scale.follow import STALE_SECONDS, FleetCopy, WorkerSeen
+from kybercore.scale.follow import STALE_SECONDS, FleetCopy, WorkerSeen, silent_owner
 from kybercore.scale.slots import SlotRef
 
 S = [SlotRef("", n) for n in range(4)]
@@ -127,3 +127,13 @@ def test_a_printer_moved_to_another_site_stays_when_its_old_slot_removes_it_late
     # Removed by the slot that holds it, it is gone.
     fleet.batch(new, {**batch(1, 3), "removed": ["p"]}, now=STALE_SECONDS + 0.6)
     assert fleet.views == {}
+
+
+def test_a_silent_owner_of_a_site_may_be_a_site_cut_off() -> None:
+    # A site keeping its leases at its own leaf node is not taken over while cut off: its
+    # printers must not promise that another worker takes them over.
+    said = silent_owner("lab-b")
+    assert "site 'lab-b' may be cut off" in said
+    assert "another worker of site 'lab-b' then takes it over shortly, if one runs" in said
+    assert "cut off" not in silent_owner("")
+    assert f"over {STALE_SECONDS:.0f} s" in silent_owner("")

@@ -23,6 +23,21 @@ from kybercore.scale.slots import SlotRef
 STALE_SECONDS: Final = 2.0
 
 
+def silent_owner(site: str) -> str:
+    """What a printer of a stale slot says while its front still has the broker: its
+    owner may have stopped, or (a site's) be cut off from this front's NATS, with its
+    leases held at its own leaf node so that nobody takes over."""
+    silent = (
+        f"No news from the KyberCore worker holding this printer for over {STALE_SECONDS:.0f} s"
+    )
+    if site:
+        return (
+            f"{silent}: it may have stopped (another worker of site '{site}' then takes it "
+            f"over shortly, if one runs), or site '{site}' may be cut off from this server."
+        )
+    return f"{silent}; another worker takes it over shortly, if one runs."
+
+
 @dataclass
 class SlotCopy:
     """What the front knows of one slot."""

@@ -52,7 +52,7 @@ from kybercore.registry.store import PrinterRegistry, read_printers
 from kybercore.scale.broker import connect
 from kybercore.scale.commands import send_command
 from kybercore.scale.cut_off import STALE_MESSAGE, CutOff
-from kybercore.scale.follow import STALE_SECONDS, FleetCopy
+from kybercore.scale.follow import FleetCopy, silent_owner
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import SlotRef, slot_of
 from kybercore.scale.streams import open_stream
@@ -248,13 +248,8 @@ class FrontFleet(FleetService):
                 unheard = LivePrinter(connection_error=_unheard(config.site))
                 made = self._unreported[printer_id] = (config, fuse(config, unheard))
             return made[1]
-        if self.copy.is_stale(self._slot(printer_id)):
-            message = (
-                f"No news from the KyberCore worker holding this printer for over "
-                f"{STALE_SECONDS:.0f} s; another worker takes it over shortly."
-                if self.broker_connected
-                else STALE_MESSAGE
-            )
+        if self.copy.is_stale(slot := self._slot(printer_id)):
+            message = silent_owner(slot.site) if self.broker_connected else STALE_MESSAGE
             return {**view, "connection": "stale", "connection_error": message}
         return view
 
