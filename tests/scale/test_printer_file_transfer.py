@@ -6,6 +6,8 @@ refuses the file says so."""
 from __future__ import annotations
 
 import hashlib
+import io
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -22,8 +24,8 @@ from kybercore.scale.front import FrontFleet
 from kybercore.scale.jobfiles import BUCKET, JobFileBucket
 from kybercore.scale.queue import FrontPrinters
 from kybercore.scale.wire import command_subject
-from tests.helpers import subscribed
-from tests.scale.test_upload_transfer import PRINTER, gcode
+from tests.helpers import subscribed, wait_for
+from tests.scale.test_upload_transfer import PRINTER, REFUSED_WITHIN, gcode
 
 
 @dataclass
@@ -110,3 +112,20 @@ async def test_a_broker_that_refuses_the_file_is_a_transfer_failure(
     with pytest.raises(TransferFailed, match=r"did not take the job file 'big\.gcode'") as caught:
         await printers.download(PRINTER, "big.gcode")
     assert caught.value.code == "transfer_failed"
+
+
+async def test_a_job_file_while_the_broker_is_away_is_refused_at_once(
+    nats_server: LocalServer,
+) -> None:
+    nc = await connect(nats_server.url, "front")
+    try:
+        nats_server.stop()
+        await wait_for(lambda: not nc.is_connected, 10, "the front to see the broker gone")
+        began = time.monotonic()
+        with pytest.raises(TransferFailed, match=r"'a\.gcode' \(ConnectionReconnectingError\)"):
+            await JobFileBucket(nc).share("0" * 64, io.BytesIO(b"G28\n"), "a.gcode")
+        took = time.monotonic() - began
+        print(f"job file refused in {took * 1000:.2f} ms")
+        assert took < REFUSED_WITHIN
+    finally:
+        await nc.close()

@@ -168,6 +168,22 @@ async def test_the_broker_away_is_said_and_nothing_is_sent(
     assert pair.service.received == []
 
 
+async def test_an_upload_while_the_broker_is_away_is_refused_at_once(
+    pair: Pair, nats_server: LocalServer
+) -> None:
+    nats_server.stop()
+    await wait_for(lambda: not pair.front.is_connected, 10, "the front to see the broker gone")
+    began = time.monotonic()
+    with pytest.raises(TransferFailed, match=r"taking the file \(ConnectionReconnectingError"):
+        await send_upload(
+            pair.front, PRINTER, "a.gcode", b"G28\n", start=False, confirm=False, epoch=lambda: 1
+        )
+    took = time.monotonic() - began
+    print(f"upload refused in {took * 1000:.2f} ms")
+    assert took < REFUSED_WITHIN
+    assert pair.service.received == []
+
+
 async def test_a_command_while_the_broker_is_away_is_refused_at_once_and_never_sent_later(
     pair: Pair, nats_server: LocalServer
 ) -> None:
