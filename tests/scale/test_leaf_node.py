@@ -1,7 +1,9 @@
-"""A site behind a NATS leaf node: its workers connect to the site's own nats-server, a leaf
-node without JetStream, and keep their leases, the registry and job files in the hub's
-JetStream domain, named in their address (``nats://site-leaf:4222?js_domain=hub``). A real
-hub and leaf node (two nats-servers linked), real workers, front and printers."""
+"""A site behind a NATS leaf node: its workers connect to the site's own nats-server, linked
+to the hub, and use the hub's JetStream domain, named in their address
+(``nats://site-leaf:4222?js_domain=hub``), for the registry and job files, and for their
+leases too unless the leaf node has JetStream of its own and they keep them there
+(``--local-leases``), so that a cut from the hub leaves the site's printers held. Real
+nats-servers (a hub and a leaf node), real workers, front and printers."""
 
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from kybercore.scale.leases import SLOTS_BUCKET
 from kybercore.scale.slots import slot_key
 from kybercore.sim.stack import PrinterStack, free_port
 from tests.helpers import KyberCoreServer, wait_for, wait_until
+from tests.scale.cable import Cable
 from tests.scale.cluster import SETTLE, SLOTS, TTL, WorkerProcess
 
 DOMAIN = "hub"
@@ -39,42 +42,49 @@ LINKED_WITHIN = 30.0
 @contextlib.contextmanager
 def linked_servers(
     folder: Path, leaf_domain: str | None
-) -> Iterator[tuple[LocalServer, LocalServer]]:
-    """A hub with JetStream in domain ``hub``, and a leaf node linked to it: with JetStream
-    of its own in ``leaf_domain``, or none."""
+) -> Iterator[tuple[LocalServer, LocalServer, Cable]]:
+    """A hub with JetStream in domain ``hub``, and a leaf node linked to it through a
+    :class:`Cable`: with JetStream of its own in ``leaf_domain``, or none."""
     link = free_port()
     hub_conf = folder / "hub.conf"
+    # no_advertise: else the leaf node learns the hub's own address and reconnects past the
+    # cable once it is cut.
     hub_conf.write_text(
-        f"jetstream {{ domain: {DOMAIN} }}\nleafnodes {{ listen: 127.0.0.1:{link} }}\n"
+        f"jetstream {{ domain: {DOMAIN} }}\n"
+        f"leafnodes {{ listen: 127.0.0.1:{link}, no_advertise: true }}\n"
     )
+    cable = Cable(link)
     leaf_conf = folder / "leaf.conf"
     leaf_conf.write_text(
         (f"jetstream {{ domain: {leaf_domain} }}\n" if leaf_domain else "")
-        + f'leafnodes {{ remotes: [{{ url: "nats-leaf://127.0.0.1:{link}" }}] }}\n'
+        + f'leafnodes {{ remotes: [{{ url: "nats-leaf://127.0.0.1:{cable.port}" }}] }}\n'
     )
     hub = LocalServer(folder / "hub", "-c", str(hub_conf))
     leaf = LocalServer(folder / "leaf", "-c", str(leaf_conf), jetstream=leaf_domain is not None)
     hub.start()
     try:
+        cable.start()
         leaf.start()
-        yield hub, leaf
+        yield hub, leaf, cable
     finally:
         leaf.close()
+        cable.close()
         hub.close()
 
 
 @pytest.fixture
 def hub_and_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
     """A hub, and a leaf node without JetStream (a site's workers use the hub's)."""
-    with linked_servers(tmp_path, None) as servers_:
-        yield servers_
+    with linked_servers(tmp_path, None) as (hub, leaf, _):
+        yield hub, leaf
 
 
 @pytest.fixture
-def hub_and_site_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer]]:
-    """A hub, and a leaf node with JetStream of its own, in domain ``lab-b``."""
-    with linked_servers(tmp_path, "lab-b") as servers_:
-        yield servers_
+def hub_and_site_leaf(tmp_path: Path) -> Iterator[tuple[LocalServer, LocalServer, Cable]]:
+    """A hub, and a leaf node with JetStream of its own, in domain ``lab-b``, and the cable
+    between them."""
+    with linked_servers(tmp_path, "lab-b") as linked_:
+        yield linked_
 
 
 def site_url(leaf: LocalServer) -> str:
@@ -159,13 +169,18 @@ def site_lab_b(
         "--lease-ttl", str(TTL), command="front",
     )  # fmt: skip
     front.start()
-    site_worker = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
+    site_worker: WorkerProcess | None = None
     try:
-        wait_until(lambda: len(site_worker.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
+        # A worker that finds no JetStream stops at once: the leaf node must be linked first.
+        linked_ = asyncio.run(wait_for(lambda: linked(site_url(leaf)), LINKED_WITHIN, "a link"))
+        print(f"leaf node linked in {linked_:.2f} s")
+        b1 = site_worker = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
+        wait_until(lambda: len(b1.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
         wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh on the hub")
         yield front, site_worker
     finally:
-        site_worker.stop()
+        if site_worker is not None:
+            site_worker.stop()
         front.stop()
 
 
@@ -209,15 +224,13 @@ def lease_revision(leaf: LocalServer, key: str) -> int:
     return asyncio.run(read())
 
 
-def test_a_site_keeping_its_leases_on_its_leaf_node_holds_its_printers_through_a_cut(
-    hub_and_site_leaf: tuple[LocalServer, LocalServer],
+def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
+    hub_and_site_leaf: tuple[LocalServer, LocalServer, Cable],
     fleet_stacks: list[PrinterStack],
     tmp_path: Path,
 ) -> None:
-    hub, leaf = hub_and_site_leaf
+    hub, leaf, cable = hub_and_site_leaf
     with site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker):
-        # The cut, as the site sees it: the hub gone. The worker renews its leases at its
-        # own leaf node, TTL/3 apart; past two TTLs it still holds every printer.
         key = slot_key(0, "lab-b")
         seen = {lease_revision(leaf, key)}
 
@@ -225,16 +238,39 @@ def test_a_site_keeping_its_leases_on_its_leaf_node_holds_its_printers_through_a
             seen.add(lease_revision(leaf, key))
             return len(seen) > round(2 * TTL / (TTL / 3))
 
-        hub.stop()
+        cable.cut()
+        # The hub's side: the site's printers stale, saying the site may be cut off, and
+        # their commands refused at once, nothing sent.
+        wait_until(
+            lambda: said_stale(front) == len(fleet_stacks), SETTLE, "the site's printers stale"
+        )
+        printer = fleet_stacks[1].options.name
+        refused = httpx.post(
+            f"{front.url}/api/printers/{printer}/gcode", json={"script": "M115"}, timeout=30
+        )
+        assert refused.status_code == 503, refused.text
+        assert refused.json()["error"]["code"] == "owner_moving"
+        assert "site is cut off" in refused.json()["error"]["message"]
+        # The site's side: its worker renews its leases at its own leaf node; past two TTLs
+        # it still holds every slot, and so every printer.
         wait_until(renewed_for_two_ttls, SETTLE, "renewals for 2 TTLs at the leaf node")
         assert len(worker.owned()) == SLOTS
-        # The hub back: the front has the site's printers again, from the same owner.
-        hub.start(port=hub.port)
+        # The line mended: the hub has the site's printers again, from the same owner.
+        cable.mend()
         wait_until(lambda: fresh(front) == len(fleet_stacks), 60, "every printer fresh again")
-        assert firmware(front, fleet_stacks[1].options.name)
+        assert firmware(front, printer)
         drops = [e for e in map(json.loads, worker.leases_log.read_text().splitlines())
                  if e["ev"] != "own"]  # fmt: skip
         assert drops == []
+
+
+def said_stale(front: KyberCoreServer) -> int:
+    """How many printers the front shows stale, saying their site may be cut off."""
+    views = httpx.get(f"{front.url}/api/printers", timeout=10).json()
+    return sum(
+        v["connection"] == "stale" and "site 'lab-b' may be cut off" in v["connection_error"]
+        for v in views
+    )
 
 
 def test_a_worker_on_a_leaf_node_without_the_domain_says_what_to_add(

@@ -67,8 +67,9 @@ CHECK_PRINTER: Final = "Check the printer (its console and state) before sending
 
 def _moving(printer_id: str) -> OwnerMoving:
     return OwnerMoving(
-        "no KyberCore worker holds this printer right now (one stopped, or printers are being "
-        "shared out again). Nothing was sent to it; retry in a few seconds.",
+        "no KyberCore worker answers for this printer right now (one stopped, printers are "
+        "being shared out again, or the printer's site is cut off from this server). Nothing "
+        "was sent to it; retry in a few seconds.",
         printer=printer_id,
     )
 

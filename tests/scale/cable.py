@@ -1,0 +1,77 @@
+"""FAULT-INJECTION stand-in — not a network: a loopback TCP relay standing for the WAN link
+between a site's NATS leaf node and its hub, which a test cuts and mends. Both ends are
+real nats-servers; they cannot be parted on demand without stopping one of them, and a
+stopped server is another failure (the site's own JetStream, or the hub's, gone)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+
+from kybercore.sim.stack import free_port
+
+
+class Cable:
+    """Relays TCP from :attr:`port` to ``upstream_port`` on loopback, on a thread of its own
+    (the tests driving it are synchronous)."""
+
+    def __init__(self, upstream_port: int) -> None:
+        self.port = free_port()
+        self._upstream = upstream_port
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="cable", daemon=True)
+        self._server: asyncio.Server | None = None
+        self._ends: set[asyncio.StreamWriter] = set()
+
+    def start(self) -> None:
+        """Start relaying."""
+        self._thread.start()
+        self.mend()
+
+    def cut(self) -> None:
+        """Drop every connection through it and refuse new ones, as a cut line would."""
+        asyncio.run_coroutine_threadsafe(self._cut(), self._loop).result(10)
+
+    def mend(self) -> None:
+        """Take connections again (the leaf node reconnects by itself)."""
+        asyncio.run_coroutine_threadsafe(self._listen(), self._loop).result(10)
+
+    def close(self) -> None:
+        """Cut it and stop its thread."""
+        self.cut()
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+        self._loop.close()
+
+    async def _listen(self) -> None:
+        self._server = await asyncio.start_server(self._relay, "127.0.0.1", self.port)
+
+    async def _cut(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+        for end in list(self._ends):
+            end.transport.abort()
+
+    async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self._upstream)
+        except OSError:
+            writer.transport.abort()
+            return
+        ends = {writer, up_writer}
+        self._ends |= ends
+        try:
+            await asyncio.gather(_pipe(reader, up_writer), _pipe(up_reader, writer))
+        finally:
+            self._ends -= ends
+
+
+async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    """Copy until either side ends, then end the other."""
+    with contextlib.suppress(OSError):
+        while data := await reader.read(65536):
+            writer.write(data)
+            await writer.drain()
+    writer.transport.abort()
