@@ -129,3 +129,20 @@ async def test_a_job_file_while_the_broker_is_away_is_refused_at_once(
         assert took < REFUSED_WITHIN
     finally:
         await nc.close()
+
+
+async def test_a_front_cut_off_from_the_broker_gives_up_fetching_a_job_file_at_once(
+    nats_server: LocalServer,
+) -> None:
+    nc = await connect(nats_server.url, "front")
+    try:
+        nats_server.stop()
+        await wait_for(lambda: not nc.is_connected, 10, "the front to see the broker gone")
+        began = time.monotonic()
+        with pytest.raises(TransferFailed, match=r"fetched from the NATS broker \(ConnectionRe"):
+            await JobFileBucket(nc).fetch("0" * 64, io.BytesIO())
+        took = time.monotonic() - began
+        print(f"job file fetch given up in {took * 1000:.2f} ms")
+        assert took < REFUSED_WITHIN
+    finally:
+        await nc.close()

@@ -184,6 +184,20 @@ async def test_an_upload_while_the_broker_is_away_is_refused_at_once(
     assert pair.service.received == []
 
 
+async def test_a_worker_cut_off_from_the_broker_gives_up_an_upload_at_once(
+    pair: Pair, nats_server: LocalServer
+) -> None:
+    order = UploadOrder(object="o1", size=4, sha256="0" * 64, filename="a.gcode")
+    nats_server.stop()
+    await wait_for(lambda: not pair.worker.is_connected, 10, "the worker to see the broker gone")
+    began = time.monotonic()
+    with pytest.raises(TransferFailed, match=r"handing the file to its worker \(ConnectionRe"):
+        await Uploads(pair.worker).fetch(order, PRINTER)
+    took = time.monotonic() - began
+    print(f"upload given up in {took * 1000:.2f} ms")
+    assert took < REFUSED_WITHIN
+
+
 async def test_a_command_while_the_broker_is_away_is_refused_at_once_and_never_sent_later(
     pair: Pair, nats_server: LocalServer
 ) -> None:

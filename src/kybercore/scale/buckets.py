@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any, Final, TypeVar
 
 from nats.aio.client import Client
+from nats.errors import ConnectionReconnectingError
 from nats.js import JetStreamContext
 from nats.js.api import ObjectStoreConfig
 from nats.js.errors import (
@@ -139,9 +140,14 @@ async def lease_bucket(
 async def object_store(nc: Client, config: ObjectStoreConfig) -> ObjectStore:
     """The object store ``config.bucket``, created with ``config`` when absent. Looked up on
     every use (they are rare, and the broker may have restarted); its copies are checked
-    once per connection."""
+    once per connection.
+
+    While ``nc`` is cut off this raises nats-py's ConnectionReconnectingError at once: a
+    file's transfer is refused then, not after nats-py's request timeout."""
     bucket = config.bucket
     assert bucket is not None
+    if not nc.is_connected:
+        raise ConnectionReconnectingError
     js = nc.jetstream()
     try:
         store = await js.object_store(bucket)

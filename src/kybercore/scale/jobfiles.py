@@ -58,8 +58,6 @@ class JobFileBucket:
         """Store the file read from ``source`` under ``sha256``, unless it is there already;
         TransferFailed when the broker does not take it (``name``: the file's, to say so)."""
         try:
-            if not self._nc.is_connected:  # said at once, not after nats-py's request timeout
-                raise nats.errors.ConnectionReconnectingError
             bucket = await self._bucket()
             if not await _has(bucket, sha256):  # else shared before: same content
                 options = ObjectMetaOptions(max_chunk_size=CHUNK_BYTES)

@@ -221,8 +221,6 @@ class Uploads:
         name = object_name()
         meta = ObjectMeta(name=name, options=ObjectMetaOptions(max_chunk_size=CHUNK_BYTES))
         try:
-            if not self._nc.is_connected:  # said at once, not after nats-py's request timeout
-                raise nats.errors.ConnectionReconnectingError
             bucket = await self._bucket()
             await bucket.put(name, reader, meta=meta)
         except (nats.errors.Error, TimeoutError) as exc:
