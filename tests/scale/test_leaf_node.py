@@ -14,7 +14,7 @@ import io
 import json
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -91,16 +91,21 @@ def site_url(leaf: LocalServer) -> str:
     return f"{leaf.url}?js_domain={DOMAIN}"
 
 
-async def linked(url: str) -> bool:
-    """Whether the hub's JetStream answers through ``url``."""
+async def linked(url: str) -> float:
+    """Wait until the hub's JetStream answers through ``url``; the seconds it took."""
+
+    async def answers() -> bool:
+        try:
+            await nc.jetstream().account_info()
+        except (nats.errors.Error, TimeoutError):
+            return False
+        return True
+
     nc = await connect(url, "probe")
     try:
-        await nc.jetstream().account_info()
-    except (nats.errors.Error, TimeoutError):
-        return False
+        return await wait_for(answers, LINKED_WITHIN, "the leaf node linked to its hub")
     finally:
         await nc.close()
-    return True
 
 
 def test_the_domain_is_read_from_the_address_and_nothing_else_is_taken() -> None:
@@ -119,7 +124,7 @@ async def test_buckets_written_through_a_leaf_node_are_the_hubs(
     hub_and_leaf: tuple[LocalServer, LocalServer],
 ) -> None:
     hub, leaf = hub_and_leaf
-    await wait_for(lambda: linked(site_url(leaf)), LINKED_WITHIN, "the leaf node linked")
+    await linked(site_url(leaf))
     site = await connect(site_url(leaf), "site")
     central = await connect(hub.url, "central")
     try:
@@ -169,18 +174,17 @@ def site_lab_b(
         "--lease-ttl", str(TTL), command="front",
     )  # fmt: skip
     front.start()
-    site_worker: WorkerProcess | None = None
     try:
         # A worker that finds no JetStream stops at once: the leaf node must be linked first.
-        linked_ = asyncio.run(wait_for(lambda: linked(site_url(leaf)), LINKED_WITHIN, "a link"))
-        print(f"leaf node linked in {linked_:.2f} s")
-        b1 = site_worker = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
-        wait_until(lambda: len(b1.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
-        wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh on the hub")
-        yield front, site_worker
+        print(f"leaf node linked in {asyncio.run(linked(site_url(leaf))):.2f} s")
+        b1 = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
+        try:
+            wait_until(lambda: len(b1.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
+            wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh on the hub")
+            yield front, b1
+        finally:
+            b1.stop()
     finally:
-        if site_worker is not None:
-            site_worker.stop()
         front.stop()
 
 
@@ -210,18 +214,17 @@ def test_a_site_worker_on_a_leaf_node_holds_and_drives_its_printers(
         assert firmware(front, fleet_stacks[0].options.name)
 
 
-def lease_revision(leaf: LocalServer, key: str) -> int:
-    """The revision of ``key`` in the leaf node's own ``kc_slots`` (each renewal adds one)."""
-
-    async def read() -> int:
-        nc = await connect(leaf.url, "reader")
+@contextlib.contextmanager
+def lease_revisions(leaf: LocalServer, key: str) -> Iterator[Callable[[], int | None]]:
+    """A reader of ``key``'s revision in the leaf node's own ``kc_slots`` (each renewal
+    adds one), on one connection held for as long as it is used."""
+    with asyncio.Runner() as runner:
+        nc = runner.run(connect(leaf.url, "reader"))
         try:
-            kv = await jetstream(nc, local=True).key_value(SLOTS_BUCKET)
-            return (await kv.get(key)).revision
+            kv = runner.run(jetstream(nc, local=True).key_value(SLOTS_BUCKET))
+            yield lambda: runner.run(kv.get(key)).revision
         finally:
-            await nc.close()
-
-    return asyncio.run(read())
+            runner.run(nc.close())
 
 
 def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
@@ -230,12 +233,14 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
     tmp_path: Path,
 ) -> None:
     hub, leaf, cable = hub_and_site_leaf
-    with site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker):
-        key = slot_key(0, "lab-b")
-        seen = {lease_revision(leaf, key)}
+    with (
+        site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker),
+        lease_revisions(leaf, slot_key(0, "lab-b")) as revision,
+    ):
+        seen = {revision()}
 
         def renewed_for_two_ttls() -> bool:
-            seen.add(lease_revision(leaf, key))
+            seen.add(revision())
             return len(seen) > round(2 * TTL / (TTL / 3))
 
         cable.cut()
