@@ -30,8 +30,8 @@ from kybercore.scale.jobfiles import JobFileBucket
 from kybercore.scale.leases import SLOTS_BUCKET
 from kybercore.scale.slots import slot_key
 from kybercore.sim.stack import PrinterStack, free_port
+from tests.cable import Cable
 from tests.helpers import KyberCoreServer, wait_for, wait_until
-from tests.scale.cable import Cable
 from tests.scale.cluster import SETTLE, SLOTS, TTL, WorkerProcess
 
 DOMAIN = "hub"

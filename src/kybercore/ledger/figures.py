@@ -12,9 +12,9 @@ from collections.abc import Awaitable, Callable
 from typing import Final
 
 from sqlalchemy import func, select
-from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.ext.asyncio import AsyncEngine
 
+from kybercore.db.outage import UNAVAILABLE, Outage
 from kybercore.jobs.tables import gates, jobs
 from kybercore.ledger.metrics import QueueFigures
 
@@ -24,17 +24,16 @@ LAG_EVERY: Final = 0.5
 
 
 async def poll(read: Callable[[], Awaitable[None]], every: float, what: str) -> None:
-    """Run ``read`` now and every ``every`` seconds, until cancelled. A database error is
+    """Run ``read`` now and every ``every`` seconds, until cancelled. A database away is
     logged once per outage (the figures last read stand meanwhile); ``what`` names them."""
-    warned = False
+    outage = Outage(log, f"read {what}", "the figures last read stand meanwhile")
     while True:
         try:
             await read()
-            warned = False
-        except SQLAlchemyError as exc:
-            if not warned:
-                log.warning("cannot read %s: %s", what, exc)
-            warned = True
+        except UNAVAILABLE as exc:
+            outage.failed(exc)
+        else:
+            outage.ended()
         await asyncio.sleep(every)
 
 

@@ -20,10 +20,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
+from kybercore.db.outage import UNAVAILABLE, Outage
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter, Interest
 from kybercore.ledger.figures import LoopLag, QueueReader, poll
@@ -52,6 +52,8 @@ log = logging.getLogger(__name__)
 # The only deltas _on_event reads: a print state changed (not temperatures, not positions).
 _INTEREST: Final = Interest({"print_stats": frozenset({"state"})})
 
+RETRY_SECONDS: Final = 1.0
+"""How soon the job history is written again after the database did not answer."""
 BACKFILLS_AT_ONCE: Final = 8
 """A thousand printers reconnecting after a restart catch up eight at a time."""
 
@@ -142,7 +144,7 @@ class LedgerService:
         for task in self._tasks:
             await cancel_and_wait(task)
         self._tasks.clear()
-        with contextlib.suppress(SQLAlchemyError):
+        with contextlib.suppress(*UNAVAILABLE):
             await self.flush()
             await self.timeline.close()
 
@@ -250,15 +252,21 @@ class LedgerService:
     # -- writing -------------------------------------------------------------------------
 
     async def _writer(self) -> None:
+        outage = Outage(
+            log, "write the job history",
+            "the job history heard meanwhile is kept and written once it does",
+        )  # fmt: skip
         while True:
             await self._wake.wait()
             self._wake.clear()
             try:
                 await self._write_live()
-            except SQLAlchemyError:
-                log.exception("ledger: cannot write the job history; retrying in a second")
-                await asyncio.sleep(1.0)
+            except UNAVAILABLE as exc:
+                outage.failed(exc)
+                await asyncio.sleep(RETRY_SECONDS)
                 self._wake.set()
+            else:
+                outage.ended()
 
     async def _write_live(self) -> None:
         """Write the live jobs heard so far. The batch is taken under the lock, so when
@@ -318,10 +326,16 @@ class LedgerService:
                 feed.catch_up.cancel()
 
     async def _sweeper(self) -> None:
+        outage = Outage(
+            log, "write the printers' states",
+            "the state changes seen meanwhile are kept and written once it does",
+        )  # fmt: skip
         while True:
             await asyncio.sleep(self._tick)
             self._sweep()
             try:
                 await self.timeline.flush()
-            except SQLAlchemyError:
-                log.exception("ledger: cannot write the printers' states; retrying")
+            except UNAVAILABLE as exc:
+                outage.failed(exc)
+            else:
+                outage.ended()

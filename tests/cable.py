@@ -1,7 +1,7 @@
-"""FAULT-INJECTION stand-in — not a network: a loopback TCP relay standing for the WAN link
-between a site's NATS leaf node and its hub, which a test cuts and mends. Both ends are
-real nats-servers; they cannot be parted on demand without stopping one of them, and a
-stopped server is another failure (the site's own JetStream, or the hub's, gone)."""
+"""FAULT-INJECTION stand-in — not a network: a loopback TCP relay standing for a WAN link a
+test cuts and mends (a site's NATS leaf node to its hub, a site's worker to the central
+PostgreSQL). Both ends are real servers; they cannot be parted on demand without stopping
+one of them, and a stopped server is another failure."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ class Cable:
         asyncio.run_coroutine_threadsafe(self._cut(), self._loop).result(10)
 
     def mend(self) -> None:
-        """Take connections again (the leaf node reconnects by itself)."""
+        """Take connections again (the clients reconnect by themselves)."""
         asyncio.run_coroutine_threadsafe(self._listen(), self._loop).result(10)
 
     def close(self) -> None:

@@ -1,0 +1,139 @@
+"""A ledger whose database stops answering: an ingest worker at a site writes to the central
+PostgreSQL across the WAN, and a cut line must lose nothing. The jobs heard and the state
+changes seen meanwhile are written once the database answers again, the ledger's tasks
+outlive the outage, and the log says it in a line, not a traceback per retry. A real
+PostgreSQL, reached through a :class:`~tests.cable.Cable` the test cuts and mends."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from sqlalchemy import select
+from sqlalchemy.engine import make_url
+from sqlalchemy.ext.asyncio import AsyncEngine
+
+from kybercore.db import open_database, transaction
+from kybercore.fleet.service import FleetService
+from kybercore.ledger import records
+from kybercore.ledger.service import LedgerService, _Feed
+from kybercore.ledger.tables import printer_states
+from kybercore.moonraker.events import Notification
+from kybercore.registry.store import PrinterRegistry, write_printers
+from tests.cable import Cable
+from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
+from tests.helpers import wait_for
+from tests.ledger.test_service import FINISHED
+
+BACK_WITHIN = 30.0
+"""The writer retries every second, the timeline every tick; a busy machine is slower."""
+
+
+@pytest.fixture
+def url(postgres_server: PostgresServer | PostgresUnavailable) -> Iterator[str]:
+    """A new database on the session's PostgreSQL."""
+    if isinstance(postgres_server, PostgresUnavailable):
+        unavailable(str(postgres_server))
+    url = postgres_server.create_database()
+    yield url
+    postgres_server.recycle(url)
+
+
+@pytest.fixture
+async def line(url: str) -> AsyncIterator[tuple[Cable, AsyncEngine, AsyncEngine]]:
+    """The cable to the database, an engine through it and one straight to it."""
+    direct = await open_database(url)
+    parsed = make_url(url)
+    assert parsed.port is not None
+    cable = Cable(parsed.port)
+    cable.start()
+    remote = await open_database(parsed.set(port=cable.port).render_as_string(False))
+    yield cable, remote, direct
+    await remote.dispose()
+    await direct.dispose()
+    cable.close()
+
+
+def finished(job_id: str) -> Notification:
+    return Notification("notify_history_changed", [{**FINISHED, "job": {**FINISHED["job"],
+                                                                        "job_id": job_id}}])
+
+
+def hear(ledger: LedgerService, event: Notification) -> None:
+    """``event`` from printer p1, whose Moonraker instance its catch-up read (a printer not
+    in the fleet: the ledger forgets it at its next sweep)."""
+    ledger._feeds["p1"] = _Feed(instance="moonraker-1")
+    ledger._on_event("p1", event)
+
+
+async def jobs_written(engine: AsyncEngine) -> set[str]:
+    _, rows = await records.page(engine, records.HistoryFilter(), 10, 0)
+    return {row["moonraker_job_id"] for row in rows}
+
+
+async def states_written(engine: AsyncEngine, printer: str) -> list[Any]:
+    async def read(conn: Any) -> list[Any]:
+        found = await conn.execute(
+            select(printer_states.c.state).where(printer_states.c.printer == printer)
+        )
+        return [row.state for row in found]
+
+    return await transaction(engine, read, write=False)
+
+
+async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
+    line: tuple[Cable, AsyncEngine, AsyncEngine],
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    cable, remote, direct = line
+    path = tmp_path / "printers.json"
+    write_printers(path, [])
+    ledger = LedgerService(
+        FleetService(PrinterRegistry(path), http), remote, tick=0.05, queue_poll=0.05
+    )
+    await ledger.start()
+    try:
+        hear(ledger, finished("00001A"))
+        await ledger.flush()
+        assert await jobs_written(direct) == {"00001A"}
+        caplog.set_level(logging.INFO, logger="kybercore")
+        cable.cut()
+        # Heard while the line is cut: a job that finished, a printer that started printing.
+        hear(ledger, finished("00002B"))
+        ledger.timeline.observe("p1", "printing")
+
+        def said(what: str) -> bool:
+            return any(what in r.getMessage() for r in caplog.records)
+
+        await wait_for(
+            lambda: said("job history heard meanwhile is kept")
+            and said("state changes seen meanwhile are kept")
+            and said("cannot read the queue's gates"),
+            BACK_WITHIN, "the ledger to find the database away",
+        )  # fmt: skip
+        cable.mend()
+        await wait_for(
+            lambda: _equal(jobs_written(direct), {"00001A", "00002B"}), BACK_WITHIN,
+            "the job heard during the cut written",
+        )  # fmt: skip
+        await wait_for(
+            lambda: _equal(states_written(direct, "p1"), ["printing"]), BACK_WITHIN,
+            "the state seen during the cut written",
+        )  # fmt: skip
+        assert all(not task.done() for task in ledger._tasks), "a ledger task died"
+        assert said("the database answers again")
+        traced = [r.getMessage() for r in caplog.records if r.exc_info]
+        assert traced == [], "an outage is said in a line, not a traceback"
+    finally:
+        await ledger.stop()
+    assert await jobs_written(direct) == {"00001A", "00002B"}  # each once
+
+
+async def _equal(read: Any, expected: Any) -> bool:
+    return await read == expected
