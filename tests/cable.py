@@ -9,6 +9,8 @@ import asyncio
 import contextlib
 import threading
 
+from sqlalchemy.engine import make_url
+
 from kybercore.sim.stack import free_port
 
 
@@ -75,3 +77,13 @@ async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> N
             writer.write(data)
             await writer.drain()
     writer.transport.abort()
+
+
+
+def to_database(database_url: str) -> tuple[Cable, str]:
+    """A started cable to the database at ``database_url``, and the URL by way of it."""
+    url = make_url(database_url)
+    assert url.port is not None
+    cable = Cable(url.port)
+    cable.start()
+    return cable, url.set(port=cable.port).render_as_string(hide_password=False)

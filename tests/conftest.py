@@ -17,7 +17,7 @@ from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
 from kybercore.sim.runtime import ensure_runtimes
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
-from tests.db.postgres import PostgresServer, PostgresUnavailable
+from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
 from tests.helpers import KyberCoreServer
 from tests.notify.receiver import Receiver
 
@@ -156,3 +156,14 @@ def postgres_server() -> Iterator[PostgresServer | PostgresUnavailable]:
         return
     yield server
     server.stop()
+
+
+@pytest.fixture
+def postgres_database(postgres_server: PostgresServer | PostgresUnavailable) -> Iterator[str]:
+    """A fresh database on the session's PostgreSQL: its URL."""
+    if isinstance(postgres_server, PostgresUnavailable):
+        unavailable(str(postgres_server))
+        raise AssertionError("unreachable")
+    url = postgres_server.create_database()
+    yield url
+    postgres_server.recycle(url)

@@ -20,6 +20,7 @@
     ├── InvalidInput                  the request itself is malformed
     ├── AccessDenied                  who are you (unauthenticated) or not allowed (forbidden)
     ├── BrokerUnavailable             NATS did not answer (distributed mode): check it, retry
+    ├── DatabaseUnavailable           the database did not answer: check it, retry
     ├── ConfigError                   printers.json, tokens.json or an option is unusable
     └── LaunchError                   a process or port KyberCore needs could not be had
 
@@ -195,6 +196,14 @@ class BrokerUnavailable(KyberCoreError):
     have been made; check that nats-server runs and is reachable, then retry."""
 
     code = "broker_unavailable"
+
+
+class DatabaseUnavailable(KyberCoreError):
+    """KyberCore's database (the queue, the ledger) could not be reached or its connection
+    was lost: what needed it was not read, or a change may or may not have been made; check
+    that the database runs and is reachable, then retry."""
+
+    code = "database_unavailable"
 
 
 class ConfigError(KyberCoreError):

@@ -14,6 +14,7 @@ from kybercore.errors import (
     ActionRejected,
     BrokerUnavailable,
     ConfigError,
+    DatabaseUnavailable,
     FileNotFound,
     InvalidInput,
     KlippyNotReady,
@@ -45,6 +46,7 @@ from kybercore.errors import (
         (AccessDenied("who?", code="unauthorized"), 401, "unauthorized"),
         (AccessDenied("not you", code="forbidden"), 403, "forbidden"),
         (BrokerUnavailable("no answer"), 503, "broker_unavailable"),
+        (DatabaseUnavailable("no answer"), 503, "database_unavailable"),
         (KyberCoreError("other"), 500, "error"),
     ],
 )

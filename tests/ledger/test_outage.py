@@ -7,14 +7,13 @@ PostgreSQL, reached through a :class:`~tests.cable.Cable` the test cuts and mend
 from __future__ import annotations
 
 import logging
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 from sqlalchemy import select
-from sqlalchemy.engine import make_url
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import open_database, transaction
@@ -24,8 +23,7 @@ from kybercore.ledger.service import LedgerService, _Feed
 from kybercore.ledger.tables import printer_states
 from kybercore.moonraker.events import Notification
 from kybercore.registry.store import PrinterRegistry, write_printers
-from tests.cable import Cable
-from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
+from tests.cable import Cable, to_database
 from tests.helpers import wait_for
 from tests.ledger.test_service import FINISHED
 
@@ -34,24 +32,11 @@ BACK_WITHIN = 30.0
 
 
 @pytest.fixture
-def url(postgres_server: PostgresServer | PostgresUnavailable) -> Iterator[str]:
-    """A new database on the session's PostgreSQL."""
-    if isinstance(postgres_server, PostgresUnavailable):
-        unavailable(str(postgres_server))
-    url = postgres_server.create_database()
-    yield url
-    postgres_server.recycle(url)
-
-
-@pytest.fixture
-async def line(url: str) -> AsyncIterator[tuple[Cable, AsyncEngine, AsyncEngine]]:
+async def line(postgres_database: str) -> AsyncIterator[tuple[Cable, AsyncEngine, AsyncEngine]]:
     """The cable to the database, an engine through it and one straight to it."""
-    direct = await open_database(url)
-    parsed = make_url(url)
-    assert parsed.port is not None
-    cable = Cable(parsed.port)
-    cable.start()
-    remote = await open_database(parsed.set(port=cable.port).render_as_string(False))
+    direct = await open_database(postgres_database)
+    cable, remote_url = to_database(postgres_database)
+    remote = await open_database(remote_url)
     yield cable, remote, direct
     await remote.dispose()
     await direct.dispose()
@@ -127,7 +112,10 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
             "the state seen during the cut written",
         )  # fmt: skip
         assert all(not task.done() for task in ledger._tasks), "a ledger task died"
-        assert said("the database answers again")
+        # Said once the write returns, which is after its commit the test saw.
+        await wait_for(
+            lambda: said("can write the job history again"), BACK_WITHIN, "the writer to say so"
+        )
         traced = [r.getMessage() for r in caplog.records if r.exc_info]
         assert traced == [], "an outage is said in a line, not a traceback"
     finally:

@@ -10,34 +10,22 @@ from pathlib import Path
 import pytest
 
 from kybercore.sim.stack import PrinterStack, free_port
-from tests.db.postgres import PostgresServer, PostgresUnavailable, unavailable
 from tests.helpers import KyberCoreServer
 from tests.scale.cluster import SLOTS, TTL, Cluster, fresh_cluster
 
 
 @pytest.fixture
-def shared_database(postgres_server: PostgresServer | PostgresUnavailable) -> Iterator[str]:
-    """A fresh database on the suite's PostgreSQL, for every process of one cluster."""
-    if isinstance(postgres_server, PostgresUnavailable):
-        unavailable(str(postgres_server))
-        raise AssertionError("unreachable")
-    url = postgres_server.create_database()
-    yield url
-    postgres_server.recycle(url)
-
-
-@pytest.fixture
 def shared_cluster(
-    fleet_stacks: list[PrinterStack], tmp_path: Path, shared_database: str
+    fleet_stacks: list[PrinterStack], tmp_path: Path, postgres_database: str
 ) -> Iterator[Cluster]:
-    """Two workers and a front on a broker of their own, sharing ``shared_database``."""
-    with fresh_cluster(fleet_stacks, tmp_path, shared_database) as started:
+    """Two workers and a front on a broker of their own, sharing ``postgres_database``."""
+    with fresh_cluster(fleet_stacks, tmp_path, postgres_database) as started:
         yield started
 
 
 @pytest.fixture
 def front_b(
-    shared_cluster: Cluster, tmp_path: Path, shared_database: str
+    shared_cluster: Cluster, tmp_path: Path, postgres_database: str
 ) -> Iterator[KyberCoreServer]:
     """Another front on ``shared_cluster``'s broker and database, with its own disk: started
     after the cluster's (which holds the roles first), stopped after the test."""
@@ -46,7 +34,7 @@ def front_b(
     shutil.copy(shared_cluster.folder / "printers.json", folder / "printers.json")
     front = KyberCoreServer(
         folder / "printers.json", free_port(), "--nats", shared_cluster.broker.url,
-        "--slots", str(SLOTS), "--database-url", shared_database, "--front-id", "front-b",
+        "--slots", str(SLOTS), "--database-url", postgres_database, "--front-id", "front-b",
         "--lease-ttl", str(TTL), command="front",
     )  # fmt: skip
     front.start()

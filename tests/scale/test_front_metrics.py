@@ -50,7 +50,7 @@ def worker_slots(samples: Samples) -> tuple[set[str], float]:
 # A cluster to start, a print, then the front's next reads: more than the default 120 s may
 # pass on a busy machine (its waits alone allow PRINT_WITHIN + 2 * READ_WITHIN).
 @pytest.mark.timeout(600)
-async def test_a_fronts_metrics_count_its_printers_and_read_the_shared_database(
+async def test_a_fronts_metrics_count_its_printers_and_read_the_postgres_database(
     shared_cluster: Cluster, fleet_stacks: list[PrinterStack]
 ) -> None:
     cluster = shared_cluster

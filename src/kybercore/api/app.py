@@ -205,6 +205,7 @@ def create_app(
                     await queue.stop()
                     await service.stop()
         finally:
+            await app.state.audit.close()
             await engine.dispose()
 
     app = FastAPI(

@@ -30,6 +30,7 @@ from kybercore.errors import (
     BrokerUnavailable,
     ChannelNotFound,
     ConfigError,
+    DatabaseUnavailable,
     FileNotFound,
     InvalidInput,
     KlippyNotReady,
@@ -58,6 +59,7 @@ _STATUSES: Final[tuple[tuple[type[KyberCoreError], int], ...]] = (
     (PrinterTimeout, 504),
     (PrinterUnreachable, 503),
     (BrokerUnavailable, 503),
+    (DatabaseUnavailable, 503),
     (ConfigError, 500),
     (LaunchError, 500),
 )

@@ -28,6 +28,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from kybercore.api.auth import Identity
 from kybercore.api.guard import SAFE_METHODS
+from kybercore.db.outage import said
+from kybercore.errors import DatabaseUnavailable
 from kybercore.ledger.audit import AuditEntry, AuditLog
 
 log = logging.getLogger(__name__)
@@ -163,6 +165,11 @@ class _Recording:
             return  # not a route (the guard refused it, 404, 405), or a dry run
         try:
             await self.audit_log.record(*self._entries(path, outcome))
+        except DatabaseUnavailable as exc:
+            log.warning(
+                "The audit row of %s %s waits until the database answers (%s); the action "
+                "ran, and its answer goes out", self.scope["method"], path, said(exc),
+            )  # fmt: skip
         except Exception:
             # The action happened whatever the log says: the answer still goes out.
             log.exception("Could not write the audit row of %s %s", self.scope["method"], path)

@@ -7,7 +7,7 @@ here: the job queue's tables are :mod:`kybercore.jobs.tables`, its schema histor
 """
 
 from kybercore.db.engine import default_database_url, open_database
-from kybercore.db.transaction import is_unique_violation, transaction
+from kybercore.db.transaction import is_unique_violation, reading, transaction
 from kybercore.db.types import UTCDateTime
 
 __all__ = [
@@ -15,5 +15,6 @@ __all__ = [
     "default_database_url",
     "is_unique_violation",
     "open_database",
+    "reading",
     "transaction",
 ]

@@ -18,7 +18,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine, create_async_engine
 
 from kybercore.db.migrate import upgrade
 from kybercore.db.transaction import WRITE_OPTION
-from kybercore.errors import ConfigError, KyberCoreError
+from kybercore.errors import ConfigError, DatabaseUnavailable, KyberCoreError
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,9 @@ async def open_database(url: str) -> AsyncEngine:
     engine = _create_engine(parsed)
     try:
         await upgrade(engine, shown)
+    except DatabaseUnavailable as exc:
+        await engine.dispose()
+        raise ConfigError(_unreachable(parsed, shown, exc.__cause__ or exc)) from exc
     except KyberCoreError:
         await engine.dispose()
         raise

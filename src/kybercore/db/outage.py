@@ -1,5 +1,6 @@
-"""A database that stops answering, as the background writers meet it: what it raises, and
-one line in the log when an outage begins and one when it ends, however often they retry.
+"""A database that stops answering: :class:`DatabaseUnavailable` for whatever the driver
+raised (:mod:`kybercore.db.transaction` raises it), and, for the background tasks that meet
+it, one line in the log when an outage begins and one when it ends, however often they retry.
 
 A site's ingest worker writes its ledger to the central PostgreSQL across the WAN, so a cut
 line is an outage like any other; what was heard meanwhile stays in memory and is written
@@ -12,40 +13,68 @@ import logging
 import time
 from typing import Final
 
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.exc import DBAPIError, SQLAlchemyError
+from sqlalchemy.ext.asyncio import AsyncEngine
 
-UNAVAILABLE: Final = (SQLAlchemyError, OSError, TimeoutError)
-"""What a database that cannot be reached raises: SQLAlchemy's errors, and the socket
-errors and connect timeouts of asyncpg's connect, which SQLAlchemy passes on unwrapped (a
-refused connection is a ConnectionRefusedError)."""
+from kybercore.errors import DatabaseUnavailable
+
+UNAVAILABLE: Final = (DatabaseUnavailable, SQLAlchemyError)
+"""What a background writer retries: the database away, or refusing one statement."""
+
+
+def unreachable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the database could not be reached or its connection was lost,
+    rather than that it refused a statement. asyncpg's connect raises plain socket errors
+    and timeouts, which SQLAlchemy passes on unwrapped (a refused connection is a
+    ConnectionRefusedError); a connection lost later is a DBAPIError that invalidated it."""
+    if isinstance(exc, DBAPIError):
+        return exc.connection_invalidated
+    return isinstance(exc, OSError | TimeoutError)
+
+
+def unavailable(engine: AsyncEngine, exc: BaseException) -> DatabaseUnavailable:
+    """The error that says ``exc`` (:func:`unreachable`) and what to do."""
+    shown = engine.url.render_as_string(hide_password=True)
+    cause = exc.orig if isinstance(exc, DBAPIError) else exc
+    return DatabaseUnavailable(
+        f"The database {shown} does not answer ({type(cause).__name__}: {cause}). Check that "
+        "it runs and that KyberCore can reach it, then try again; a change asked just as it "
+        "went away may or may not have been made."
+    )
 
 
 class Outage:
-    """One background task's view of the database: away since when, said once."""
+    """One background task's view of what it depends on (the database, mostly): failing
+    since when, said once when it begins and once when it ends."""
 
     def __init__(self, log: logging.Logger, doing: str, meanwhile: str) -> None:
         """``doing``: what the task cannot do ("write the job history"); ``meanwhile``: what
-        becomes of its work ("the jobs heard meanwhile are kept and written once it does")."""
+        becomes of its work ("the jobs heard meanwhile are kept and written once it can")."""
         self._log = log
         self._doing = doing
         self._meanwhile = meanwhile
         self._since: float | None = None
 
     def failed(self, exc: BaseException) -> None:
-        """The task's database work failed with ``exc`` (one of :data:`UNAVAILABLE`)."""
+        """The task's work failed with ``exc``."""
         if self._since is None:
             self._since = time.monotonic()
-            self._log.warning(
-                "cannot %s: the database does not answer (%s: %s); %s. Check that it runs "
-                "and is reachable from here.",
-                self._doing, type(exc).__name__, exc, self._meanwhile,
-            )  # fmt: skip
+            self._log.warning("cannot %s (%s); %s.", self._doing, said(exc), self._meanwhile)
 
     def ended(self) -> None:
-        """The task's database work succeeded."""
+        """The task's work succeeded."""
         if self._since is not None:
             self._log.info(
-                "the database answers again (for %.0f s it could not %s)",
-                time.monotonic() - self._since, self._doing,
+                "can %s again (it could not for %.0f s)",
+                self._doing, time.monotonic() - self._since,
             )  # fmt: skip
             self._since = None
+
+
+def said(exc: BaseException) -> str:
+    """``exc`` in a line for a log; a database away by its driver's own error."""
+    away = isinstance(exc, DatabaseUnavailable)
+    cause = exc.__cause__ if away and exc.__cause__ is not None else exc
+    if isinstance(cause, DBAPIError) and cause.orig is not None:
+        cause = cause.orig
+    return f"{'the database does not answer: ' if away else ''}{type(cause).__name__}: {cause}"

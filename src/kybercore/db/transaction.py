@@ -8,6 +8,9 @@ polling between coroutines) and writers of other processes on SQLite's busy time
 the database still says "locked" (SQLite) or picks this transaction as a deadlock victim
 or serialization failure (PostgreSQL), the whole work runs again, a bounded number of
 times; the work must therefore only touch the database.
+
+A database that cannot be reached raises DatabaseUnavailable here and in :func:`reading`,
+whatever the driver raised (:mod:`kybercore.db.outage`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from typing import Final, TypeVar
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import DBAPIError, IntegrityError
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
+
+from kybercore.db.outage import unavailable, unreachable
 
 log = logging.getLogger(__name__)
 
@@ -54,13 +59,28 @@ async def transaction(
         try:
             async with _serialized(engine, write), target.begin() as conn:
                 return await work(conn)
-        except DBAPIError as exc:
-            if attempt == ATTEMPTS or not _transient(exc):
+        except (DBAPIError, OSError, TimeoutError) as exc:
+            if unreachable(exc):
+                raise unavailable(engine, exc) from exc
+            if not isinstance(exc, DBAPIError) or attempt == ATTEMPTS or not _transient(exc):
                 raise
             log.warning("Database busy (%s); trying again (%d/%d)", exc.orig, attempt, ATTEMPTS)
             # Jitter keeps two processes that collided from colliding again in step.
             await asyncio.sleep(random.uniform(0.01, 0.05) * attempt)
     raise AssertionError("unreachable")  # the loop returns or raises
+
+
+@contextlib.asynccontextmanager
+async def reading(engine: AsyncEngine) -> AsyncIterator[AsyncConnection]:
+    """A connection for reads outside a transaction of :func:`transaction`'s (a page of the
+    history, the statistics); DatabaseUnavailable when the database cannot be reached."""
+    try:
+        async with engine.connect() as conn:
+            yield conn
+    except (DBAPIError, OSError, TimeoutError) as exc:
+        if unreachable(exc):
+            raise unavailable(engine, exc) from exc
+        raise
 
 
 def is_unique_violation(exc: IntegrityError) -> bool:

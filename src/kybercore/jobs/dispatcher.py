@@ -34,6 +34,7 @@ from typing import Final
 
 from kybercore.aio import cancel_and_wait
 from kybercore.core.numbers import finite_number
+from kybercore.db.outage import Outage
 from kybercore.errors import ActionRejected, KyberCoreError, PrinterUnreachable
 from kybercore.jobs.files import JobFiles
 from kybercore.jobs.models import Attempt, Gate, Job
@@ -140,6 +141,7 @@ class Dispatcher:
 
     async def _loop(self) -> None:
         loop = asyncio.get_running_loop()
+        outage = Outage(log, "plan the queue", f"it tries again every {RETRY_SECONDS:g} s")
         while True:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), self._tick)
@@ -149,14 +151,16 @@ class Dispatcher:
             started = loop.time()
             try:
                 await self.round()
-            except KyberCoreError as exc:
-                log.warning("queue: planning failed, retrying in %g s: %s", RETRY_SECONDS, exc)
+            except KyberCoreError as exc:  # the database away, mostly: said once
+                outage.failed(exc)
                 await asyncio.sleep(RETRY_SECONDS)
                 self.wake()
             except Exception:
                 log.exception("queue: planning failed; retrying in %g s", RETRY_SECONDS)
                 await asyncio.sleep(RETRY_SECONDS)
                 self.wake()
+            else:
+                outage.ended()
             await asyncio.sleep(started + self._round_gap - loop.time())
 
     def now(self) -> datetime:

@@ -16,6 +16,9 @@ in a value, and the password of a URL, before a row is written.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,7 +41,11 @@ from sqlalchemy import (
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 from sqlalchemy.sql.elements import ColumnElement
 
+from kybercore.aio import cancel_and_wait
 from kybercore.db import UTCDateTime, transaction
+from kybercore.errors import DatabaseUnavailable
+
+log = logging.getLogger(__name__)
 
 metadata = MetaData()
 """The audit table alone: migration ``0003_audit`` creates it."""
@@ -62,6 +69,8 @@ audit = Table(
     Index("ix_audit_action", "action", "at"),
 )
 
+RETRY_SECONDS: Final = 2.0
+"""How often rows the database did not take are tried again."""
 REDACTED: Final = "[redacted]"
 # A parameter named like one of these holds a secret, whatever its value looks like.
 _SECRET_NAME: Final = re.compile(
@@ -166,18 +175,56 @@ class AuditLog:
 
     def __init__(self, engine: AsyncEngine) -> None:
         self.engine = engine
+        self._waiting: list[dict[str, Any]] = []
+        self._retry: asyncio.Task[None] | None = None
 
     async def record(self, *entries: AuditEntry) -> None:
-        """Append ``entries`` (one transaction), secrets redacted."""
-        if not entries:
-            return
+        """Append ``entries`` (one transaction), secrets redacted.
+
+        When the database does not answer they wait here, in order and with their own
+        times, and are written within :data:`RETRY_SECONDS` of it answering again. The
+        record that found it away raises DatabaseUnavailable, for its caller to say so;
+        the ones after it join the wait without trying (an action's answer waits for its
+        row, and a database that drops packets would hold it for the connect timeout)."""
         now = datetime.now(UTC)
-        rows = [entry.row(now) for entry in entries]
+        self._waiting.extend(entry.row(now) for entry in entries)
+        if self._retry is None or self._retry.done():
+            await self._write()
+
+    async def close(self) -> None:
+        """Stop retrying and try once more; rows still waiting are lost, said in the log."""
+        await cancel_and_wait(self._retry)
+        with contextlib.suppress(DatabaseUnavailable):
+            await self._write()
+        if self._waiting:
+            log.warning(
+                "%d audit rows were never written (the database did not answer), from %s "
+                "to %s", len(self._waiting), self._waiting[0]["at"], self._waiting[-1]["at"],
+            )  # fmt: skip
+
+    async def _write(self) -> None:
+        rows, self._waiting = self._waiting, []
+        if not rows:
+            return
 
         async def insert(conn: AsyncConnection) -> None:
             await conn.execute(audit.insert(), rows)
 
-        await transaction(self.engine, insert)
+        try:
+            await transaction(self.engine, insert)
+        except DatabaseUnavailable:
+            self._waiting[:0] = rows
+            if self._retry is None or self._retry.done():
+                self._retry = asyncio.create_task(self._retry_until_written(), name="audit")
+            raise
+
+    async def _retry_until_written(self) -> None:
+        while self._waiting:
+            await asyncio.sleep(RETRY_SECONDS)
+            waited = len(self._waiting)
+            with contextlib.suppress(DatabaseUnavailable):
+                await self._write()
+                log.info("%d audit rows written once the database answered again", waited)
 
     async def query(self, query: AuditQuery) -> tuple[int, list[dict[str, Any]]]:
         """``(total matching, the page asked for)``, newest first; rows as plain dicts."""

@@ -14,6 +14,7 @@ from typing import Final
 from sqlalchemy import func, select
 from sqlalchemy.ext.asyncio import AsyncEngine
 
+from kybercore.db import reading
 from kybercore.db.outage import UNAVAILABLE, Outage
 from kybercore.jobs.tables import gates, jobs
 from kybercore.ledger.metrics import QueueFigures
@@ -49,7 +50,7 @@ class QueueReader:
     async def read(self) -> None:
         """Read the gates and the depth again."""
         queued = jobs.c.state == "queued"
-        async with self._engine.connect() as conn:
+        async with reading(self._engine) as conn:
             found = await conn.execute(select(gates.c.printer, gates.c.state))
             read_gates = {printer: state for printer, state in found}
             count, left, oldest = (

@@ -25,7 +25,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
 from kybercore.core.numbers import finite_number
-from kybercore.db import transaction
+from kybercore.db import reading, transaction
 from kybercore.errors import MoonrakerRpcError
 from kybercore.jobs.tables import attempts
 from kybercore.ledger.tables import history_jobs
@@ -202,7 +202,7 @@ class HistoryStore:
         0 when none is known."""
         where = and_(history_jobs.c.printer == printer, history_jobs.c.instance == instance)
         ids = history_jobs.c.moonraker_job_id
-        async with self._engine.connect() as conn:
+        async with reading(self._engine) as conn:
             open_ids = (
                 await conn.scalars(select(ids).where(where, history_jobs.c.status == IN_PROGRESS))
             ).all()
@@ -222,7 +222,7 @@ class HistoryStore:
         )
         if printers is not None:
             query = query.where(history_jobs.c.printer.in_(printers))
-        async with self._engine.connect() as conn:
+        async with reading(self._engine) as conn:
             result = await conn.execute(query)
             return {(printer, status): int(n) for printer, status, n in result}
 

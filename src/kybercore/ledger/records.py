@@ -15,6 +15,7 @@ from typing import Any, Final
 from sqlalchemy import ColumnElement, Float, Select, and_, func, literal, or_, select
 from sqlalchemy.ext.asyncio import AsyncEngine
 
+from kybercore.db import reading
 from kybercore.jobs.tables import attempts, jobs, queue_events
 from kybercore.ledger.tables import history_jobs
 
@@ -86,7 +87,7 @@ async def page(
 ) -> tuple[int, list[dict[str, Any]]]:
     """How many jobs match, and the ``limit`` after ``offset``, newest first."""
     query = _query(where)
-    async with engine.connect() as conn:
+    async with reading(engine) as conn:
         total = await conn.scalar(select(func.count()).select_from(query.subquery()))
         result = await conn.execute(
             query.order_by(history_jobs.c.start_time.desc(), history_jobs.c.id.desc())
@@ -109,7 +110,7 @@ async def every_row(engine: AsyncEngine, where: HistoryFilter) -> AsyncIterator[
                 or_(h.start_time < start, and_(h.start_time == start, h.id < row_id))
             )
         query = query.order_by(h.start_time.desc(), h.id.desc()).limit(CSV_BATCH)
-        async with engine.connect() as conn:
+        async with reading(engine) as conn:
             batch = (await conn.execute(query)).all()
         for record in batch:
             yield _row(record)

@@ -254,7 +254,7 @@ class LedgerService:
     async def _writer(self) -> None:
         outage = Outage(
             log, "write the job history",
-            "the job history heard meanwhile is kept and written once it does",
+            "the job history heard meanwhile is kept and written once it can",
         )  # fmt: skip
         while True:
             await self._wake.wait()
@@ -328,7 +328,7 @@ class LedgerService:
     async def _sweeper(self) -> None:
         outage = Outage(
             log, "write the printers' states",
-            "the state changes seen meanwhile are kept and written once it does",
+            "the state changes seen meanwhile are kept and written once it can",
         )  # fmt: skip
         while True:
             await asyncio.sleep(self._tick)

@@ -40,6 +40,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine
 from sqlalchemy.ext.compiler import compiles
 from sqlalchemy.sql.functions import GenericFunction
 
+from kybercore.db import reading
 from kybercore.errors import InvalidInput
 from kybercore.jobs.tables import attempts, jobs
 from kybercore.ledger.tables import history_jobs, printer_states
@@ -116,7 +117,7 @@ async def statistics(
     def group(key: Any) -> Group:
         return groups.setdefault(str(key), Group(str(key), has_timeline=timed))
 
-    async with engine.connect() as conn:
+    async with reading(engine) as conn:
         for key, status, verdict, cause, n, seconds, mm, grams, weighed in await conn.execute(
             _jobs_query(group_by, begin, end, days)
         ):

@@ -40,6 +40,7 @@ import httpx
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
+from kybercore.db.outage import Outage
 from kybercore.errors import ChannelNotFound
 from kybercore.jobs.service import QueueService
 from kybercore.notify.detector import Detector, Observation
@@ -240,16 +241,17 @@ class NotifyService:
             self._emit(event)
 
     async def _queue_watcher(self) -> None:
-        warned = False
+        outage = Outage(
+            log, "check the queue for notifications", "its alerts wait until it can"
+        )  # a database that is down says so once, not every round
         while True:
             try:
                 for event in await self.checks.run(self.settings, time.monotonic(), _utcnow()):
                     self._push(event)
-                warned = False
             except Exception as exc:
-                if not warned:  # a database that is down says so once, not every round
-                    log.warning("notifications: cannot check the queue: %s", exc)
-                warned = True
+                outage.failed(exc)
+            else:
+                outage.ended()
             await asyncio.sleep(self._queue_poll)
 
     # -- delivery ----------------------------------------------------------------------
