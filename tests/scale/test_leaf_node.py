@@ -3,7 +3,8 @@ to the hub, and use the hub's JetStream domain, named in their address
 (``nats://site-leaf:4222?js_domain=hub``), for the registry and job files, and for their
 leases too unless the leaf node has JetStream of its own and they keep them there
 (``--local-leases``), so that a cut from the hub leaves the site's printers held. Real
-nats-servers (a hub and a leaf node), real workers, front and printers."""
+nats-servers (a hub and a leaf node), real workers, fronts (on the hub, at the site) and
+printers."""
 
 from __future__ import annotations
 
@@ -159,28 +160,33 @@ async def test_buckets_written_through_a_leaf_node_are_the_hubs(
 
 @contextlib.contextmanager
 def site_lab_b(
-    hub: LocalServer, leaf: LocalServer, stacks: list[PrinterStack], folder: Path, *args: str
+    hub: LocalServer,
+    leaf: LocalServer,
+    stacks: list[PrinterStack],
+    folder: Path,
+    *args: str,
+    front_at: str | None = None,
 ) -> Iterator[tuple[KyberCoreServer, WorkerProcess]]:
-    """``stacks`` as site lab-b's printers: a front on the hub, and the site's worker b1 on
-    its leaf node (``args``: more of its options); yields once b1 holds every slot of the
-    site and the front shows every printer fresh."""
+    """``stacks`` as site lab-b's printers: a front on the hub (or at ``front_at``), and the
+    site's worker b1 on its leaf node (``args``: more of its options); yields once b1 holds
+    every slot of the site and the front shows every printer fresh."""
     printers = [
         PrinterConfig(id=s.options.name, name=s.options.name, site="lab-b", moonraker_url=s.url)
         for s in stacks
     ]
     write_printers(folder / "printers.json", printers)
+    # What finds no JetStream stops at once: the leaf node must be linked first.
+    print(f"leaf node linked in {asyncio.run(linked(site_url(leaf))):.2f} s")
     front = KyberCoreServer(
-        folder / "printers.json", free_port(), "--nats", hub.url, "--slots", str(SLOTS),
-        "--lease-ttl", str(TTL), command="front",
+        folder / "printers.json", free_port(), "--nats", front_at or hub.url,
+        "--slots", str(SLOTS), "--lease-ttl", str(TTL), command="front",
     )  # fmt: skip
     front.start()
     try:
-        # A worker that finds no JetStream stops at once: the leaf node must be linked first.
-        print(f"leaf node linked in {asyncio.run(linked(site_url(leaf))):.2f} s")
         b1 = WorkerProcess("b1", site_url(leaf), folder, "--site", "lab-b", *args)
         try:
             wait_until(lambda: len(b1.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots")
-            wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh on the hub")
+            wait_until(lambda: fresh(front) == len(stacks), 60, "every printer fresh")
             yield front, b1
         finally:
             b1.stop()
@@ -214,6 +220,29 @@ def test_a_site_worker_on_a_leaf_node_holds_and_drives_its_printers(
         assert firmware(front, fleet_stacks[0].options.name)
 
 
+def test_a_front_at_the_site_drives_its_printers_through_a_cut_from_the_hub(
+    hub_and_site_leaf: tuple[LocalServer, LocalServer, Cable],
+    fleet_stacks: list[PrinterStack],
+    tmp_path: Path,
+) -> None:
+    # The site's own front, on its leaf node: the registry, the dispatcher's lease and the
+    # job files at the hub through the leaf, the site's patches and commands at the leaf.
+    hub, leaf, cable = hub_and_site_leaf
+    with site_lab_b(
+        hub, leaf, fleet_stacks, tmp_path, "--local-leases", front_at=site_url(leaf)
+    ) as (front, worker):
+        printer = fleet_stacks[0].options.name
+        assert firmware(front, printer)
+        with lease_revisions(leaf, slot_key(0, "lab-b")) as revision:
+            cable.cut()
+            # Cut off from the hub for two TTLs (the worker renewing its leases at the
+            # leaf node meanwhile), the site still sees and drives its own printers.
+            wait_until(two_ttls_of_renewals(revision), SETTLE, "renewals for 2 TTLs")
+            assert fresh(front) == len(fleet_stacks)
+            assert firmware(front, printer)
+            assert len(worker.owned()) == SLOTS
+
+
 @contextlib.contextmanager
 def lease_revisions(leaf: LocalServer, key: str) -> Iterator[Callable[[], int | None]]:
     """A reader of ``key``'s revision in the leaf node's own ``kc_slots`` (each renewal
@@ -237,12 +266,7 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
         site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker),
         lease_revisions(leaf, slot_key(0, "lab-b")) as revision,
     ):
-        seen = {revision()}
-
-        def renewed_for_two_ttls() -> bool:
-            seen.add(revision())
-            return len(seen) > round(2 * TTL / (TTL / 3))
-
+        renewed_for_two_ttls = two_ttls_of_renewals(revision)
         cable.cut()
         # The hub's side: the site's printers stale, saying the site may be cut off, and
         # their commands refused at once, nothing sent.
@@ -267,6 +291,18 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
         drops = [e for e in map(json.loads, worker.leases_log.read_text().splitlines())
                  if e["ev"] != "own"]  # fmt: skip
         assert drops == []
+
+
+def two_ttls_of_renewals(revision: Callable[[], int | None]) -> Callable[[], bool]:
+    """A condition that holds once ``revision`` (a lease's) has moved on through two TTLs
+    of renewals, one every TTL/3, counted from now."""
+    seen = {revision()}
+
+    def renewed() -> bool:
+        seen.add(revision())
+        return len(seen) > round(2 * TTL / (TTL / 3))
+
+    return renewed
 
 
 def said_stale(front: KyberCoreServer) -> int:
