@@ -196,6 +196,7 @@ class AuditLog:
         await cancel_and_wait(self._retry)
         with contextlib.suppress(DatabaseUnavailable):
             await self._write()
+        await cancel_and_wait(self._retry)  # the try above, failing, scheduled another
         if self._waiting:
             log.warning(
                 "%d audit rows were never written (the database did not answer), from %s "
