@@ -21,8 +21,10 @@ from kybercore.registry.store import PrinterRegistry, read_printers, write_print
 from kybercore.sim.stack import free_port
 from tests.helpers import loop_watchdog
 
-READ_WITHIN = 0.5
-"""Promise: a fleet read answers while a write waits for the lock. Idle: ~2 ms (250x)."""
+READ_WITHIN = 2.0
+"""Promise: a fleet read answers while a write waits for the lock. Idle: ~2 ms; 0.53 s was
+seen for three reads on a machine busy with two other suites. A loop blocked on the lock
+would wait until after the reads (the holder lets go only then), so any bound catches it."""
 
 # Another process's write: take the lock, change the file, hold the lock until told.
 HOLDER = """
