@@ -90,7 +90,7 @@ async def open_database(url: str) -> AsyncEngine:
     except KyberCoreError:
         await engine.dispose()
         raise
-    except (DBAPIError, OSError, TimeoutError) as exc:
+    except DBAPIError as exc:  # refused: a wrong password, a database that does not exist
         await engine.dispose()
         raise ConfigError(_unreachable(parsed, shown, exc)) from exc
     log.info("Database %s is ready", shown)

@@ -9,8 +9,10 @@ once the database answers (:mod:`kybercore.ledger.service`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections.abc import Iterator
 from typing import Final
 
 from sqlalchemy.exc import DBAPIError, SQLAlchemyError
@@ -22,25 +24,32 @@ UNAVAILABLE: Final = (DatabaseUnavailable, SQLAlchemyError)
 """What a background writer retries: the database away, or refusing one statement."""
 
 
-def unreachable(exc: BaseException) -> bool:
-    """Whether ``exc`` says the database could not be reached or its connection was lost,
-    rather than that it refused a statement. asyncpg's connect raises plain socket errors
-    and timeouts, which SQLAlchemy passes on unwrapped (a refused connection is a
-    ConnectionRefusedError); a connection lost later is a DBAPIError that invalidated it."""
+@contextlib.contextmanager
+def answering(engine: AsyncEngine) -> Iterator[None]:
+    """Raise :class:`DatabaseUnavailable` for a database that could not be reached or whose
+    connection was lost, whatever the driver raised; a statement's own error (a unique
+    violation, "database is locked") passes unchanged."""
+    try:
+        yield
+    except (DBAPIError, OSError, TimeoutError) as exc:
+        if not _unreachable(exc):
+            raise
+        shown = engine.url.render_as_string(hide_password=True)
+        cause = exc.orig if isinstance(exc, DBAPIError) else exc
+        raise DatabaseUnavailable(
+            f"The database {shown} does not answer ({type(cause).__name__}: {cause}). Check "
+            "that it runs and that KyberCore can reach it, then try again; a change asked just "
+            "as it went away may or may not have been made."
+        ) from exc
+
+
+def _unreachable(exc: DBAPIError | OSError | TimeoutError) -> bool:
+    # asyncpg's connect raises plain socket errors and timeouts, which SQLAlchemy passes on
+    # unwrapped (a refused connection is a ConnectionRefusedError); a connection lost later
+    # is a DBAPIError that invalidated it.
     if isinstance(exc, DBAPIError):
         return exc.connection_invalidated
-    return isinstance(exc, OSError | TimeoutError)
-
-
-def unavailable(engine: AsyncEngine, exc: BaseException) -> DatabaseUnavailable:
-    """The error that says ``exc`` (:func:`unreachable`) and what to do."""
-    shown = engine.url.render_as_string(hide_password=True)
-    cause = exc.orig if isinstance(exc, DBAPIError) else exc
-    return DatabaseUnavailable(
-        f"The database {shown} does not answer ({type(cause).__name__}: {cause}). Check that "
-        "it runs and that KyberCore can reach it, then try again; a change asked just as it "
-        "went away may or may not have been made."
-    )
+    return True
 
 
 class Outage:

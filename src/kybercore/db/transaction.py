@@ -27,7 +27,7 @@ from sqlalchemy.engine import Engine
 from sqlalchemy.exc import DBAPIError, IntegrityError
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
-from kybercore.db.outage import unavailable, unreachable
+from kybercore.db.outage import answering
 
 log = logging.getLogger(__name__)
 
@@ -57,12 +57,11 @@ async def transaction(
     target = engine.execution_options(**{WRITE_OPTION: True}) if write else engine
     for attempt in range(1, ATTEMPTS + 1):
         try:
-            async with _serialized(engine, write), target.begin() as conn:
-                return await work(conn)
-        except (DBAPIError, OSError, TimeoutError) as exc:
-            if unreachable(exc):
-                raise unavailable(engine, exc) from exc
-            if not isinstance(exc, DBAPIError) or attempt == ATTEMPTS or not _transient(exc):
+            with answering(engine):
+                async with _serialized(engine, write), target.begin() as conn:
+                    return await work(conn)
+        except DBAPIError as exc:
+            if attempt == ATTEMPTS or not _transient(exc):
                 raise
             log.warning("Database busy (%s); trying again (%d/%d)", exc.orig, attempt, ATTEMPTS)
             # Jitter keeps two processes that collided from colliding again in step.
@@ -74,13 +73,9 @@ async def transaction(
 async def reading(engine: AsyncEngine) -> AsyncIterator[AsyncConnection]:
     """A connection for reads outside a transaction of :func:`transaction`'s (a page of the
     history, the statistics); DatabaseUnavailable when the database cannot be reached."""
-    try:
+    with answering(engine):
         async with engine.connect() as conn:
             yield conn
-    except (DBAPIError, OSError, TimeoutError) as exc:
-        if unreachable(exc):
-            raise unavailable(engine, exc) from exc
-        raise
 
 
 def is_unique_violation(exc: IntegrityError) -> bool:
