@@ -233,25 +233,33 @@ def test_a_front_at_the_site_drives_its_printers_through_a_cut_from_the_hub(
     ) as (front, worker):
         printer = fleet_stacks[0].options.name
         assert firmware(front, printer)
-        with lease_revisions(leaf, slot_key(0, "lab-b")) as revision:
-            cable.cut()
+        with cut_from_the_hub(leaf, cable) as two_ttls_passed:
             # Cut off from the hub for two TTLs (the worker renewing its leases at the
             # leaf node meanwhile), the site still sees and drives its own printers.
-            wait_until(two_ttls_of_renewals(revision), SETTLE, "renewals for 2 TTLs")
+            two_ttls_passed()
             assert fresh(front) == len(fleet_stacks)
             assert firmware(front, printer)
             assert len(worker.owned()) == SLOTS
 
 
 @contextlib.contextmanager
-def lease_revisions(leaf: LocalServer, key: str) -> Iterator[Callable[[], int | None]]:
-    """A reader of ``key``'s revision in the leaf node's own ``kc_slots`` (each renewal
-    adds one), on one connection held for as long as it is used."""
+def cut_from_the_hub(leaf: LocalServer, cable: Cable) -> Iterator[Callable[[], None]]:
+    """Cut ``cable``, the leaf node's line to the hub; yields a wait for two TTLs of lease
+    renewals (one every TTL/3) counted from the cut, read in the leaf node's own
+    ``kc_slots`` on one connection held meanwhile."""
     with asyncio.Runner() as runner:
         nc = runner.run(connect(leaf.url, "reader"))
         try:
             kv = runner.run(jetstream(nc, local=True).key_value(SLOTS_BUCKET))
-            yield lambda: runner.run(kv.get(key)).revision
+            key = slot_key(0, "lab-b")
+            seen = {runner.run(kv.get(key)).revision}
+
+            def renewed_for_two_ttls() -> bool:
+                seen.add(runner.run(kv.get(key)).revision)
+                return len(seen) > round(2 * TTL / (TTL / 3))
+
+            cable.cut()
+            yield lambda: wait_until(renewed_for_two_ttls, SETTLE, "renewals for 2 TTLs")
         finally:
             runner.run(nc.close())
 
@@ -264,10 +272,8 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
     hub, leaf, cable = hub_and_site_leaf
     with (
         site_lab_b(hub, leaf, fleet_stacks, tmp_path, "--local-leases") as (front, worker),
-        lease_revisions(leaf, slot_key(0, "lab-b")) as revision,
+        cut_from_the_hub(leaf, cable) as two_ttls_passed,
     ):
-        renewed_for_two_ttls = two_ttls_of_renewals(revision)
-        cable.cut()
         # The hub's side: the site's printers stale, saying the site may be cut off, and
         # their commands refused at once, nothing sent.
         wait_until(
@@ -282,7 +288,7 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
         assert "site is cut off" in refused.json()["error"]["message"]
         # The site's side: its worker renews its leases at its own leaf node; past two TTLs
         # it still holds every slot, and so every printer.
-        wait_until(renewed_for_two_ttls, SETTLE, "renewals for 2 TTLs at the leaf node")
+        two_ttls_passed()
         assert len(worker.owned()) == SLOTS
         # The line mended: the hub has the site's printers again, from the same owner.
         cable.mend()
@@ -291,18 +297,6 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
         drops = [e for e in map(json.loads, worker.leases_log.read_text().splitlines())
                  if e["ev"] != "own"]  # fmt: skip
         assert drops == []
-
-
-def two_ttls_of_renewals(revision: Callable[[], int | None]) -> Callable[[], bool]:
-    """A condition that holds once ``revision`` (a lease's) has moved on through two TTLs
-    of renewals, one every TTL/3, counted from now."""
-    seen = {revision()}
-
-    def renewed() -> bool:
-        seen.add(revision())
-        return len(seen) > round(2 * TTL / (TTL / 3))
-
-    return renewed
 
 
 def said_stale(front: KyberCoreServer) -> int:
