@@ -125,3 +125,27 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
 
 async def _equal(read: Any, expected: Any) -> bool:
     return await read == expected
+
+
+async def test_stopping_while_the_database_is_away_says_what_was_not_written(
+    line: tuple[Cable, AsyncEngine, AsyncEngine],
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    cable, remote, _ = line
+    path = tmp_path / "printers.json"
+    write_printers(path, [])
+    # A tick and a write retry longer than the test: only stop() tries to write.
+    ledger = LedgerService(FleetService(PrinterRegistry(path), http), remote, tick=3600)
+    await ledger.start()
+    cable.cut()
+    hear(ledger, finished("00003C"))
+    ledger.timeline.observe("p1", "printing")
+    caplog.set_level(logging.WARNING, logger="kybercore")
+    await ledger.stop()
+    said = [r.getMessage() for r in caplog.records if "stopping with" in r.getMessage()]
+    assert len(said) == 1, [r.getMessage() for r in caplog.records]
+    assert "1 jobs heard and 1 state changes seen not written" in said[0]
+    assert "the database does not answer" in said[0]
+    assert "come back from the printers' Moonraker history" in said[0]

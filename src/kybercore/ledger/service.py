@@ -23,7 +23,7 @@ from typing import Any, Final
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
-from kybercore.db.outage import UNAVAILABLE, Outage
+from kybercore.db.outage import UNAVAILABLE, Outage, said
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter, Interest
 from kybercore.ledger.figures import LoopLag, QueueReader, poll
@@ -144,9 +144,16 @@ class LedgerService:
         for task in self._tasks:
             await cancel_and_wait(task)
         self._tasks.clear()
-        with contextlib.suppress(*UNAVAILABLE):
+        try:
             await self.flush()
             await self.timeline.close()
+        except UNAVAILABLE as exc:
+            log.warning(
+                "stopping with %d jobs heard and %d state changes seen not written (%s); "
+                "the jobs come back from the printers' Moonraker history at the next start, "
+                "the state changes do not",
+                len(self._live), self.timeline.pending, said(exc),
+            )  # fmt: skip
 
     async def flush(self) -> None:
         """Write the live jobs and state changes heard so far, now."""

@@ -78,6 +78,11 @@ class Timeline:
         """Every known printer's state now (shared: do not modify)."""
         return self._current
 
+    @property
+    def pending(self) -> int:
+        """How many changes are noted and not written yet."""
+        return len(self._pending)
+
     def observe(self, printer: str, state: State, at: float | None = None) -> None:
         """Note the printer's state; a change is written with the next :meth:`flush`."""
         if self._current.get(printer) != state:
