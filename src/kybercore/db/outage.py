@@ -54,7 +54,8 @@ def _unreachable(exc: DBAPIError | OSError | TimeoutError) -> bool:
 
 class Outage:
     """One background task's view of what it depends on (the database, mostly): failing
-    since when, said once when it begins and once when it ends."""
+    since when, said when it begins (and again for each other kind of failure meanwhile,
+    which is news) and once when it ends, however often the task retries."""
 
     def __init__(self, log: logging.Logger, doing: str, meanwhile: str) -> None:
         """``doing``: what the task cannot do ("write the job history"); ``meanwhile``: what
@@ -63,11 +64,14 @@ class Outage:
         self._doing = doing
         self._meanwhile = meanwhile
         self._since: float | None = None
+        self._said: set[type[BaseException]] = set()
 
     def failed(self, exc: BaseException) -> None:
         """The task's work failed with ``exc``."""
         if self._since is None:
             self._since = time.monotonic()
+        if type(exc) not in self._said:
+            self._said.add(type(exc))
             self._log.warning("cannot %s (%s); %s.", self._doing, said(exc), self._meanwhile)
 
     def ended(self) -> None:
@@ -78,6 +82,7 @@ class Outage:
                 self._doing, time.monotonic() - self._since,
             )  # fmt: skip
             self._since = None
+            self._said.clear()
 
 
 def said(exc: BaseException) -> str:

@@ -151,7 +151,7 @@ class Dispatcher:
             started = loop.time()
             try:
                 await self.round()
-            except KyberCoreError as exc:  # the database away, mostly: said once
+            except KyberCoreError as exc:  # the database away, mostly: said once per kind
                 outage.failed(exc)
                 await asyncio.sleep(RETRY_SECONDS)
                 self.wake()
