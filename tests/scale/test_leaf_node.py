@@ -28,6 +28,7 @@ from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer, connect, jetstream, jetstream_domain, servers
 from kybercore.scale.buckets import NO_JETSTREAM, key_value, wrong_revision
 from kybercore.scale.jobfiles import JobFileBucket
+from kybercore.scale.last_read import FILE
 from kybercore.scale.leases import SLOTS_BUCKET
 from kybercore.scale.slots import slot_key
 from kybercore.sim.stack import PrinterStack, free_port
@@ -220,26 +221,38 @@ def test_a_site_worker_on_a_leaf_node_holds_and_drives_its_printers(
         assert firmware(front, fleet_stacks[0].options.name)
 
 
-def test_a_front_at_the_site_drives_its_printers_through_a_cut_from_the_hub(
+@pytest.fixture
+def site_on_its_own(
     hub_and_site_leaf: tuple[LocalServer, LocalServer, Cable],
     fleet_stacks: list[PrinterStack],
     tmp_path: Path,
-) -> None:
-    # The site's own front, on its leaf node: the registry, the dispatcher's lease and the
-    # job files at the hub through the leaf, the site's patches and commands at the leaf.
-    hub, leaf, cable = hub_and_site_leaf
+) -> Iterator[tuple[KyberCoreServer, WorkerProcess]]:
+    """Site lab-b as it rides through cuts: its worker with ``--local-leases`` and its own
+    front, both on its leaf node (the registry, the dispatcher's lease and the job files at
+    the hub through the leaf; the site's leases, patches and commands at the leaf)."""
+    hub, leaf, _ = hub_and_site_leaf
     with site_lab_b(
         hub, leaf, fleet_stacks, tmp_path, "--local-leases", front_at=site_url(leaf)
-    ) as (front, worker):
-        printer = fleet_stacks[0].options.name
+    ) as started:
+        yield started
+
+
+def test_a_front_at_the_site_drives_its_printers_through_a_cut_from_the_hub(
+    site_on_its_own: tuple[KyberCoreServer, WorkerProcess],
+    hub_and_site_leaf: tuple[LocalServer, LocalServer, Cable],
+    fleet_stacks: list[PrinterStack],
+) -> None:
+    front, worker = site_on_its_own
+    _, leaf, cable = hub_and_site_leaf
+    printer = fleet_stacks[0].options.name
+    assert firmware(front, printer)
+    with cut_from_the_hub(leaf, cable) as two_ttls_passed:
+        # Cut off from the hub for two TTLs (the worker renewing its leases at the leaf
+        # node meanwhile), the site still sees and drives its own printers.
+        two_ttls_passed()
+        assert fresh(front) == len(fleet_stacks)
         assert firmware(front, printer)
-        with cut_from_the_hub(leaf, cable) as two_ttls_passed:
-            # Cut off from the hub for two TTLs (the worker renewing its leases at the
-            # leaf node meanwhile), the site still sees and drives its own printers.
-            two_ttls_passed()
-            assert fresh(front) == len(fleet_stacks)
-            assert firmware(front, printer)
-            assert len(worker.owned()) == SLOTS
+        assert len(worker.owned()) == SLOTS
 
 
 @contextlib.contextmanager
@@ -297,6 +310,36 @@ def test_a_site_cut_off_from_the_hub_keeps_its_printers_and_the_hub_says_so(
         drops = [e for e in map(json.loads, worker.leases_log.read_text().splitlines())
                  if e["ev"] != "own"]  # fmt: skip
         assert drops == []
+
+
+def test_a_site_worker_restarted_while_cut_off_holds_the_printers_it_read_last(
+    site_on_its_own: tuple[KyberCoreServer, WorkerProcess],
+    hub_and_site_leaf: tuple[LocalServer, LocalServer, Cable],
+    fleet_stacks: list[PrinterStack],
+    tmp_path: Path,
+) -> None:
+    # The registry is at the hub: a worker restarted during a cut starts on the printers
+    # it read last (kept in its folder), and follows the registry once the line is mended.
+    front, worker = site_on_its_own
+    _, leaf, cable = hub_and_site_leaf
+    assert (worker.folder / FILE).exists()
+    cable.cut()
+    worker.stop()  # hands its slots back at the leaf node
+    again = WorkerProcess("b1", site_url(leaf), tmp_path, "--site", "lab-b", "--local-leases")
+    said = again.folder / "worker.log"
+    try:
+        wait_until(lambda: len(again.owned()) == SLOTS, SETTLE, "b1 owns lab-b's slots again")
+        wait_until(lambda: fresh(front) == len(fleet_stacks), 60, "every printer fresh")
+        assert firmware(front, fleet_stacks[0].options.name)
+        assert f"starting on the {len(fleet_stacks)} printers of site 'lab-b'" in said.read_text()
+        cable.mend()
+        wait_until(
+            lambda: "registry answers again" in said.read_text(), SETTLE,
+            "b1 to follow the registry again",
+        )  # fmt: skip
+        assert fresh(front) == len(fleet_stacks)
+    finally:
+        again.stop()
 
 
 def said_stale(front: KyberCoreServer) -> int:

@@ -52,8 +52,9 @@ NO_JETSTREAM: Final = (
     "No JetStream answered through the NATS server. Start nats-server with JetStream (-js); "
     "if this is a site's leaf node whose JetStream is its hub's, add ?js_domain=<the hub's "
     "domain> to KyberCore's NATS address (--nats); a worker started with --local-leases "
-    "needs JetStream on that leaf node itself. A cluster that has just started elects its "
-    "JetStream leader within seconds: then try again."
+    "needs JetStream on that leaf node itself. A leaf node cut off from its hub answers the "
+    "same: check the line to the hub. A cluster that has just started elects its JetStream "
+    "leader within seconds: then try again."
 )
 T = TypeVar("T")
 _checked: weakref.WeakKeyDictionary[Client, set[str]] = weakref.WeakKeyDictionary()

@@ -38,6 +38,7 @@ from nats.aio.subscription import Subscription
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
+from kybercore.errors import BrokerUnavailable
 from kybercore.fleet.service import FleetService
 from kybercore.ledger.figures import LoopLag
 from kybercore.ledger.service import LedgerService
@@ -46,6 +47,7 @@ from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry
 from kybercore.scale.commands import CommandRunner
 from kybercore.scale.jobfiles import JobFileBucket
+from kybercore.scale.last_read import LastRead
 from kybercore.scale.leases import Leases
 from kybercore.scale.registry import KvRegistry
 from kybercore.scale.slots import DEFAULT_SITE, slot_of
@@ -67,6 +69,8 @@ GRACE_SECONDS: Final = 30.0
 """How long the sessions of a lost slot stay open, in case it comes back."""
 CHECK_SECONDS: Final = 0.25
 """How often ownership is looked at between lease rounds (fencing is noticed this fast)."""
+REGISTRY_RETRY_SECONDS: Final = 2.0
+"""How often a worker started on the printers it read last tries the registry again."""
 
 
 class Worker:
@@ -90,7 +94,8 @@ class Worker:
     ) -> None:
         """``url``: the broker's (``nc``'s), for the lease renewals' own connection.
         ``site``: the worker holds the printers of this site only (:mod:`.slots`).
-        ``folder`` keeps the worker's own/drop log (``leases.jsonl``). With ``database``
+        ``folder`` keeps the worker's own/drop log (``leases.jsonl``) and the printers it
+        last read from the registry (:mod:`.last_read`). With ``database``
         (the one the fronts read), the worker keeps the ledger of the printers it acts
         for: their job history and state timeline. ``local_leases``: its leases are kept in
         the JetStream of the server it connects to, a site's leaf node (:mod:`.leases`)."""
@@ -100,6 +105,7 @@ class Worker:
         self.site = site
         self._grace = grace
         self.registry = KvRegistry(read_keys=True)
+        self.last_read = LastRead(folder)
         # Never read: the worker's printers come from the bucket, applied by _reconcile.
         unused = PrinterRegistry(folder / "printers.json")
         self.service = FleetService(
@@ -138,13 +144,14 @@ class Worker:
 
     async def start(self) -> None:
         """Open the buckets, start following the registry and claiming slots."""
-        await self.registry.open(self._nc)
+        opened = await self._open_registry()
         self.service.hub.start()
         await self.leases.start()
         if self.ledger is not None:
             await self.ledger.start()
         self._tasks = [
-            asyncio.create_task(self.registry.watch(self._on_printers), name="registry-watch"),
+            asyncio.create_task(self._follow_registry(opened), name="registry-watch"),
+            asyncio.create_task(self.last_read.run(), name="registry-last-read"),
             asyncio.create_task(self._run(), name="worker-loop"),
             asyncio.create_task(self._send(), name="worker-publisher"),
             asyncio.create_task(self._lag.run(), name="worker-loop-lag"),
@@ -173,10 +180,43 @@ class Worker:
             self._handed.add(slot)
         self._wake.set()
 
+    async def _open_registry(self) -> bool:
+        """Open the registry: True. When it cannot be read and this worker read it before
+        (a site cut off from the hub, restarting a worker), start on the printers it read
+        last instead of stopping: False."""
+        try:
+            await self.registry.open(self._nc)
+        except (BrokerUnavailable, TimeoutError) as exc:
+            last = await self.last_read.load()
+            if last is None:
+                raise
+            log.warning(
+                "%s: the printer registry cannot be read (%s); starting on the %d printers "
+                "of site '%s' it read last (%s), and following the registry once it answers",
+                self.worker_id, exc, len(last), self.site, self.last_read.path,
+            )  # fmt: skip
+            self._use(last)
+            return False
+        return True
+
+    async def _follow_registry(self, opened: bool) -> None:
+        if not opened:
+            while not opened:
+                await asyncio.sleep(REGISTRY_RETRY_SECONDS)
+                with contextlib.suppress(BrokerUnavailable, TimeoutError):
+                    await self.registry.open(self._nc)
+                    opened = True
+            log.info("%s: the printer registry answers again; following it", self.worker_id)
+        await self.registry.watch(self._on_printers)
+
     def _on_printers(self, printers: list[PrinterConfig]) -> None:
         # Another site's printers are its own workers' (a printer moved to another site
         # leaves this worker's sessions, and its removal is published to the fronts).
-        self._printers = [p for p in printers if p.site == self.site]
+        self._use([p for p in printers if p.site == self.site])
+        self.last_read.keep(self._printers)
+
+    def _use(self, printers: list[PrinterConfig]) -> None:
+        self._printers = printers
         self._version += 1
         self._wake.set()
 
