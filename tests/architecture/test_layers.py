@@ -55,15 +55,16 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
     ),
     "sim": ("kybercore.errors", "kybercore.registry"),
     # Scale-out on NATS: leases, and the ingest and front roles over the fleet. A worker
-    # is a process's composition root, as api/app.py is: it runs the ledger of its printers.
+    # is a process's composition root, as api/app.py is: it opens the ledger's database and
+    # runs the ledger of its printers (scale/worker_ledger.py).
     # A front runs the job queue through jobs.printers' protocol (scale/queue.py), and
     # owners do its work with jobs.printers' in-process implementation (scale/ops.py).
     # The notifications run on a front through notify.printers' protocol
     # (scale/front_notify.py); notify knows nothing of NATS.
     "scale": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
-        "kybercore.moonraker", "kybercore.registry", "kybercore.ledger", "kybercore.jobs",
-        "kybercore.notify",
+        "kybercore.moonraker", "kybercore.registry", "kybercore.db", "kybercore.ledger",
+        "kybercore.jobs", "kybercore.notify",
     ),
     "cli": ("kybercore",),
 }  # fmt: skip

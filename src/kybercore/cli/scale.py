@@ -137,17 +137,15 @@ async def _ingest(
     url: str, name: str, slots: int, site: str, ttl: float, grace: float, folder: Path,
     database: str | None, local_leases: bool,
 ) -> None:  # fmt: skip
-    from kybercore.db import open_database
     from kybercore.moonraker.http import new_http_client
     from kybercore.scale.broker import connect
     from kybercore.scale.worker import Worker
 
-    engine = await open_database(database) if database else None
     nc = await connect(url, f"kybercore-ingest-{name}")
     async with new_http_client() as http:
         worker = Worker(
             nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, site=site,
-            grace=grace, database=engine, local_leases=local_leases,
+            grace=grace, database=database, local_leases=local_leases,
         )
         await worker.start()
         where = f" for site '{site}'" if site else ""
@@ -155,8 +153,6 @@ async def _ingest(
         await _until_signal()
         await worker.stop()
     await nc.close()
-    if engine is not None:
-        await engine.dispose()
 
 
 def front(

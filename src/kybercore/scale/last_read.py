@@ -54,6 +54,10 @@ class LastRead:
                     self.path, exc,
                 )  # fmt: skip
 
+    async def written(self) -> bool:
+        """Whether a list was ever written (this worker ran before)."""
+        return await asyncio.to_thread(self.path.exists)
+
     async def load(self) -> list[PrinterConfig] | None:
         """The printers written last; None when there are none (never written, or spoiled:
         said in the log)."""

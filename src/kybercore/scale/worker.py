@@ -35,13 +35,11 @@ import picows
 from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.aio.subscription import Subscription
-from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.aio import cancel_and_wait
 from kybercore.errors import BrokerUnavailable
 from kybercore.fleet.service import FleetService
 from kybercore.ledger.figures import LoopLag
-from kybercore.ledger.service import LedgerService
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry
@@ -61,6 +59,7 @@ from kybercore.scale.wire import (
     slot_of_subject,
     snapshot_subject,
 )
+from kybercore.scale.worker_ledger import WorkerLedger
 
 log = logging.getLogger(__name__)
 
@@ -89,14 +88,14 @@ class Worker:
         site: str = DEFAULT_SITE,
         grace: float = GRACE_SECONDS,
         connect: Connect = picows.ws_connect,
-        database: AsyncEngine | None = None,
+        database: str | None = None,
         local_leases: bool = False,
     ) -> None:
         """``url``: the broker's (``nc``'s), for the lease renewals' own connection.
         ``site``: the worker holds the printers of this site only (:mod:`.slots`).
         ``folder`` keeps the worker's own/drop log (``leases.jsonl``) and the printers it
         last read from the registry (:mod:`.last_read`). With ``database``
-        (the one the fronts read), the worker keeps the ledger of the printers it acts
+        (the URL of the one the fronts read), the worker keeps the ledger of the printers it acts
         for: their job history and state timeline. ``local_leases``: its leases are kept in
         the JetStream of the server it connects to, a site's leaf node (:mod:`.leases`)."""
         self._nc = nc
@@ -121,7 +120,7 @@ class Worker:
         )  # fmt: skip
         self.ledger = None
         if database is not None:
-            self.ledger = LedgerService(
+            self.ledger = WorkerLedger(
                 self.service, database, owns=lambda pid: self._acting_for(self._slot(pid))
             )
         self._printers: list[PrinterConfig] = []
@@ -145,10 +144,10 @@ class Worker:
     async def start(self) -> None:
         """Open the buckets, start following the registry and claiming slots."""
         opened = await self._open_registry()
+        if self.ledger is not None:  # before any slot is claimed: it may stop the start
+            await self.ledger.start(restarted=await self.last_read.written())
         self.service.hub.start()
         await self.leases.start()
-        if self.ledger is not None:
-            await self.ledger.start()
         self._tasks = [
             asyncio.create_task(self._follow_registry(opened), name="registry-watch"),
             asyncio.create_task(self.last_read.run(), name="registry-last-read"),
