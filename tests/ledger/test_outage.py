@@ -48,6 +48,13 @@ def finished(job_id: str) -> Notification:
                                                                         "job_id": job_id}}])
 
 
+def no_printers(folder: Path, http: httpx.AsyncClient) -> FleetService:
+    """A fleet of none: the ledgers here hear what the tests make them hear."""
+    path = folder / "printers.json"
+    write_printers(path, [])
+    return FleetService(PrinterRegistry(path), http)
+
+
 def hear(ledger: LedgerService, event: Notification) -> None:
     """``event`` from printer p1, whose Moonraker instance its catch-up read (a printer not
     in the fleet: the ledger forgets it at its next sweep)."""
@@ -77,11 +84,7 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     cable, remote, direct = line
-    path = tmp_path / "printers.json"
-    write_printers(path, [])
-    ledger = LedgerService(
-        FleetService(PrinterRegistry(path), http), remote, tick=0.05, queue_poll=0.05
-    )
+    ledger = LedgerService(no_printers(tmp_path, http), remote, tick=0.05, queue_poll=0.05)
     await ledger.start()
     try:
         hear(ledger, finished("00001A"))
@@ -134,10 +137,8 @@ async def test_stopping_while_the_database_is_away_says_what_was_not_written(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     cable, remote, _ = line
-    path = tmp_path / "printers.json"
-    write_printers(path, [])
     # A tick and a write retry longer than the test: only stop() tries to write.
-    ledger = LedgerService(FleetService(PrinterRegistry(path), http), remote, tick=3600)
+    ledger = LedgerService(no_printers(tmp_path, http), remote, tick=3600)
     await ledger.start()
     cable.cut()
     hear(ledger, finished("00003C"))
