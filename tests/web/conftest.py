@@ -69,7 +69,8 @@ class ConsoleErrors:
         self.expected.append(re.compile(pattern))
 
     def unexpected(self) -> list[str]:
-        self.page.evaluate("0")  # deliver events still in flight
+        if not self.page.is_closed():  # a test may close its pages as it goes
+            self.page.evaluate("0")  # deliver events still in flight
         console = [e for e in self.console if not any(p.search(e) for p in self.expected)]
         return [f"page error: {e}" for e in self.page_errors] + [f"console: {e}" for e in console]
 
