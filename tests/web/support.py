@@ -3,6 +3,7 @@ the dashboard, find tiles."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import httpx
@@ -18,6 +19,19 @@ SAMPLES = Path(__file__).resolve().parents[2] / "src/kybercore/sim/samples"
 SAMPLE = SAMPLES / "calibration_cube_20mm_pla.gcode"
 # axe-core's script (pinned in package-lock.json, installed by `npm ci`), run in the page.
 AXE = Path(__file__).resolve().parents[2] / "node_modules" / "axe-core" / "axe.min.js"
+
+
+@functools.cache
+def _axe_script() -> str:
+    return AXE.read_text()
+
+
+def inject_axe(page: Page) -> None:
+    """Put axe-core in ``page`` unless it is there already: the script is 654 kB, read once
+    per run and evaluated once per page (through the DevTools protocol, so the page's CSP,
+    script-src 'self', stays on)."""
+    if not page.evaluate("typeof axe !== 'undefined'"):
+        page.evaluate(_axe_script())
 
 
 def make_idle(server: KyberCoreServer, api: httpx.Client) -> None:

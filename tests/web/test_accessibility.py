@@ -18,7 +18,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
-from tests.web.support import AXE, open_fleet, start_print, tile
+from tests.web.support import AXE, inject_axe, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 
@@ -109,8 +109,7 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
 
 
 def _violations(page: Page) -> list[dict[str, Any]]:
-    # Evaluated through the DevTools protocol: the page's CSP (script-src 'self') stays on.
-    page.evaluate(AXE.read_text())
+    inject_axe(page)
     result = page.evaluate(
         "async (tags) => (await axe.run(document, {runOnly: {type: 'tag', values: tags}}))"
         ".violations.map(v => ({id: v.id, impact: v.impact, help: v.help,"

@@ -11,7 +11,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
-from tests.web.support import ARTIFACTS, AXE, open_fleet
+from tests.web.support import ARTIFACTS, inject_axe, open_fleet
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 
@@ -62,7 +62,7 @@ def test_the_audit_log_shows_who_did_what_and_how_it_ended(
     page.set_viewport_size({"width": 480, "height": 900})
     wrap = view.locator(".table-wrap")
     assert wrap.evaluate("el => el.scrollWidth > el.clientWidth"), "the table should scroll here"
-    page.evaluate(AXE.read_text())
+    inject_axe(page)
     found = page.evaluate(
         "async () => (await axe.run('#audit-view', {runOnly: ['scrollable-region-focusable']}))"
         ".violations.map(v => v.id)"
