@@ -6,6 +6,8 @@ own/drop log, never two owners at once."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
@@ -454,3 +456,45 @@ def test_a_release_on_a_revision_moved_on_is_someone_elses_key_not_a_failed_roun
     assert _wrong_last(moved)
     assert _wrong_last(KeyNotFoundError())
     assert not _wrong_last(BadRequestError(code=400, err_code=10058, description="other"))
+
+
+async def write_over(nats_server: LocalServer, slot: int, value: dict[str, object]) -> None:
+    """Store ``value`` in ``slot``'s key on its current revision, as a renewal would: one
+    the worker never hears answered."""
+    nc = await connect(nats_server.url, "test")
+    try:
+        kv = await nc.jetstream().key_value(SLOTS_BUCKET)
+        while True:  # the worker's own renewals move the revision too: retry on theirs
+            entry = await kv.get(slot_key(slot))
+            with contextlib.suppress(KeyWrongLastSequenceError):
+                await kv.update(slot_key(slot), json.dumps(value).encode(), last=entry.revision)
+                return
+    finally:
+        await nc.close()
+
+
+async def test_a_renewal_stored_but_never_answered_keeps_the_slot(
+    workers: Start, nats_server: LocalServer, tmp_path: Path
+) -> None:
+    # Its reply lost, the worker's next compare-and-set named a revision one behind and the
+    # slot was dropped as someone else's, though the key was still this lease.
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    epoch = w1.owned()[0]
+    await write_over(nats_server, 0, {"w": "w1", "epoch": epoch})
+    renewed = rounds_of(w1, "renew")
+    await until("two renewals", lambda: len(renewed) >= 2)
+    await w1.flush_log()
+    assert drops([tmp_path / "w1.log"]) == []
+    assert w1.owned()[0] == epoch
+
+
+async def test_a_renewal_that_finds_another_workers_lease_drops_the_slot(
+    workers: Start, nats_server: LocalServer, tmp_path: Path
+) -> None:
+    w1 = await workers("w1")
+    await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
+    await write_over(nats_server, 0, {"w": "w9", "epoch": w1.owned()[0]})
+    await until("slot 0 lost", lambda: 0 not in w1.owned())
+    await w1.flush_log()
+    assert [json.loads(line)["why"] for line in drops([tmp_path / "w1.log"])] == ["lost"]

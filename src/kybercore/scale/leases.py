@@ -1,7 +1,8 @@
 """Which worker owns which slot: leases in a JetStream key-value bucket.
 
 Every TTL/3 a worker renews each slot it owns, all at once, with a compare-and-set on the
-key's revision (a failure means someone else holds it now: the slot is dropped at once).
+key's revision. A failure means someone else holds it now, and the slot is dropped at once,
+unless the key still holds this very lease: a renewal stored but not answered.
 The renewals run on a thread of their own, with a connection of their own
 (:mod:`.renewer`), apart from the worker's event loop and the rounds that share the slots
 out: on a loop starved by ingest, the renewals ran late past the fence, and every lease was
@@ -254,10 +255,40 @@ class Leases:
             held.revision = await kv.update(self._key(slot), value, last=held.revision)
             held.renewed_sent = sent
         except (KeyWrongLastSequenceError, KeyNotFoundError):
+            if await self._still_mine(kv, slot, held):
+                return
             assert self._home is not None
             self._home.call_soon_threadsafe(self._lost, slot, held)
         finally:
             held.renewing = False
+
+    async def _still_mine(self, kv: KeyValue, slot: int, held: Held) -> bool:
+        # A renewal stored by the broker whose reply never came back leaves the revision
+        # here one behind: the key is still this lease (this worker's name and epoch, which
+        # no other worker writes), so the next compare-and-set takes its revision and the
+        # slot is kept. ``renewed_sent`` stays as it was: fencing by it remains on the safe
+        # side of the key's expiry. Anything else (gone, or another's) is a loss.
+        key = self._key(slot)
+        try:
+            entry = await kv.get(key)
+            found = json.loads(entry.value or b"{}")
+        except (KeyNotFoundError, ValueError):
+            log.warning("%s: renewing %s: the key is gone (expired)", self.worker, key)
+            return False
+        mine = found.get("w") == self.worker and (
+            found.get("epoch") == held.epoch
+            or (found.get("epoch") == 0 and entry.revision == held.epoch)
+        )
+        if not mine:
+            log.warning("%s: renewing %s: the key is %s's now", self.worker, key, found.get("w"))
+            return False
+        assert entry.revision is not None
+        log.warning(
+            "%s: renewing %s: a renewal's reply went missing (revision %s, not %s): kept",
+            self.worker, key, entry.revision, held.revision,
+        )  # fmt: skip
+        held.revision = entry.revision
+        return True
 
     def _lost(self, slot: int, held: Held) -> None:
         # epoch() first: a slot whose renewals stopped (a paused process) is fenced as of
