@@ -4,15 +4,18 @@ holder stops or goes silent, and a holder that cannot renew fences itself first.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field
 
 import pytest
 from nats.aio.client import Client
+from nats.js.errors import KeyNotFoundError
 
 from kybercore.scale.broker import LocalServer, connect
-from kybercore.scale.leader import Leadership
-from tests.scale.test_leases import TAKEOVER_BOUND, TTL, until
+from kybercore.scale.leader import ROLES_BUCKET, Leadership
+from tests.helpers import wait_for
+from tests.scale.test_leases import TAKEOVER_BOUND, TTL, until, write_over
 
 
 @dataclass
@@ -123,3 +126,36 @@ async def test_a_contender_given_another_ttl_fences_by_the_buckets(
     finally:
         await b.stop()
         await nc.close()
+
+
+async def test_a_renewal_stored_but_never_answered_keeps_the_role(
+    contenders: Start, nats_server: LocalServer
+) -> None:
+    # Its reply lost, the holder's next compare-and-set named a revision one behind and it
+    # gave the role up, though the key still held its claim.
+    a = await contenders("front-a")
+    await until("a holds the role", lambda: a.running)
+    written = await write_over(nats_server, ROLES_BUCKET, "dispatcher")
+    nc = await connect(nats_server.url, "test")
+    try:
+        kv = await nc.jetstream().key_value(ROLES_BUCKET)
+
+        async def renewed() -> bool:
+            with contextlib.suppress(KeyNotFoundError):  # expired: the role was given up
+                return ((await kv.get("dispatcher")).revision or 0) > written
+            return False
+
+        await wait_for(renewed, TAKEOVER_BOUND, "a renewal after it")
+    finally:
+        await nc.close()
+    assert a.events == ["gain"]
+
+
+async def test_a_renewal_that_finds_another_claim_gives_the_role_up(
+    contenders: Start, nats_server: LocalServer
+) -> None:
+    a = await contenders("front-a")
+    await until("a holds the role", lambda: a.running)
+    await write_over(nats_server, ROLES_BUCKET, "dispatcher", b'{"holder": "front-a"}')
+    await until("a gives the role up", lambda: not a.running)
+    assert a.events == ["gain", "loss"]

@@ -458,19 +458,25 @@ def test_a_release_on_a_revision_moved_on_is_someone_elses_key_not_a_failed_roun
     assert not _wrong_last(BadRequestError(code=400, err_code=10058, description="other"))
 
 
-async def write_over(nats_server: LocalServer, slot: int, value: dict[str, object]) -> None:
-    """Store ``value`` in ``slot``'s key on its current revision, as a renewal would: one
-    the worker never hears answered."""
+async def write_over(
+    nats_server: LocalServer, bucket: str, key: str, value: bytes | None = None
+) -> int:
+    """Store ``value`` (None: what the key holds) on the key's current revision, as a
+    renewal would: one its holder never hears answered. Returns the revision written."""
     nc = await connect(nats_server.url, "test")
     try:
-        kv = await nc.jetstream().key_value(SLOTS_BUCKET)
-        while True:  # the worker's own renewals move the revision too: retry on theirs
-            entry = await kv.get(slot_key(slot))
+        kv = await nc.jetstream().key_value(bucket)
+        while True:  # the holder's own renewals move the revision too: retry on theirs
+            entry = await kv.get(key)
             with contextlib.suppress(KeyWrongLastSequenceError):
-                await kv.update(slot_key(slot), json.dumps(value).encode(), last=entry.revision)
-                return
+                return await kv.update(key, value or entry.value or b"", last=entry.revision)
     finally:
         await nc.close()
+
+
+def lease(worker: str, epoch: int) -> bytes:
+    """A slot's lease value as ``worker`` writes it."""
+    return json.dumps({"w": worker, "epoch": epoch}).encode()
 
 
 async def test_a_renewal_stored_but_never_answered_keeps_the_slot(
@@ -481,7 +487,7 @@ async def test_a_renewal_stored_but_never_answered_keeps_the_slot(
     w1 = await workers("w1")
     await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
     epoch = w1.owned()[0]
-    await write_over(nats_server, 0, {"w": "w1", "epoch": epoch})
+    await write_over(nats_server, SLOTS_BUCKET, slot_key(0), lease("w1", epoch))
     renewed = rounds_of(w1, "renew")
     await until("two renewals", lambda: len(renewed) >= 2)
     await w1.flush_log()
@@ -494,7 +500,7 @@ async def test_a_renewal_that_finds_another_workers_lease_drops_the_slot(
 ) -> None:
     w1 = await workers("w1")
     await until("w1 owns every slot", lambda: len(w1.owned()) == SLOTS)
-    await write_over(nats_server, 0, {"w": "w9", "epoch": w1.owned()[0]})
+    await write_over(nats_server, SLOTS_BUCKET, slot_key(0), lease("w9", w1.owned()[0]))
     await until("slot 0 lost", lambda: 0 not in w1.owned())
     await w1.flush_log()
     assert [json.loads(line)["why"] for line in drops([tmp_path / "w1.log"])] == ["lost"]

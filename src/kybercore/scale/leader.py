@@ -3,11 +3,11 @@ key-value bucket whose keys expire after the TTL.
 
 Every TTL/3 a contender tries to create the role's key (``create`` succeeds only when it is
 absent); the holder renews it with a compare-and-set on its revision. The holder gives the
-role up when a renewal fails (someone else holds it now), and fences itself when its last
-successful renewal was *sent* more than 0.8·TTL ago, before the key can expire and be
-created by another (a full TTL after that renewal), just as slot leases do
-(:mod:`.leases`). A paused holder cannot fence itself; what it does meanwhile must be safe
-to do twice or refused by the database (the queue's reservations are).
+role up when a renewal finds the key gone or holding another take's claim, and fences
+itself when its last successful renewal was *sent* more than 0.8·TTL ago, before the key
+can expire and be created by another (a full TTL after that renewal), just as slot leases
+do (:mod:`.leases`). A paused holder cannot fence itself; what it does meanwhile must be
+safe to do twice or refused by the database (the queue's reservations are).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import contextlib
 import json
 import logging
 import time
+import uuid
 from collections.abc import Awaitable, Callable
 from typing import Final
 
@@ -52,6 +53,7 @@ class Leadership:
         self._on_loss = on_loss
         self._kv: KeyValue | None = None
         self._revision: int | None = None
+        self._claim = b""  # this take's value: no other take, here or elsewhere, writes it
         self._renewed_sent = 0.0
         self._task: asyncio.Task[None] | None = None
 
@@ -104,20 +106,21 @@ class Leadership:
     async def round(self) -> None:
         """Renew the role when held, else try to take it."""
         assert self._kv is not None
-        value = json.dumps({"holder": self.holder}).encode()
         sent = time.monotonic()
         if self._revision is not None:
             try:
-                self._revision = await self._kv.update(self.role, value, last=self._revision)
+                self._revision = await self._kv.update(self.role, self._claim, last=self._revision)
                 self._renewed_sent = sent
             except (KeyWrongLastSequenceError, KeyNotFoundError):
-                await self._lose("lost")
+                if not await self._still_mine():
+                    await self._lose("lost")
             return
+        claim = json.dumps({"holder": self.holder, "claim": uuid.uuid4().hex}).encode()
         try:
-            revision = await self._kv.create(self.role, value)
+            revision = await self._kv.create(self.role, claim)
         except KeyWrongLastSequenceError:
             return  # held by another
-        self._revision, self._renewed_sent = revision, sent
+        self._revision, self._renewed_sent, self._claim = revision, sent, claim
         log.info("%s: took the %s role", self.holder, self.role)
         try:
             await self._on_gain()
@@ -127,6 +130,21 @@ class Leadership:
                 await self._kv.delete(self.role, last=revision)
             await self._lose("failed to start")
             raise
+
+    async def _still_mine(self) -> bool:
+        # A renewal stored whose reply never came back leaves the revision here one behind
+        # while the key still holds this take's claim: take its revision and keep the role
+        # (``_renewed_sent`` unchanged, so fencing stays on the safe side of the expiry).
+        assert self._kv is not None
+        try:
+            entry = await self._kv.get(self.role)
+        except KeyNotFoundError:
+            return False
+        if entry.value != self._claim:
+            return False
+        log.warning("%s: %s role: a renewal's reply went missing: kept", self.holder, self.role)
+        self._revision = entry.revision
+        return True
 
     async def _lose(self, why: str) -> None:
         self._revision = None

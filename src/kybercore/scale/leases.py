@@ -271,16 +271,12 @@ class Leases:
         key = self._key(slot)
         try:
             entry = await kv.get(key)
-            found = json.loads(entry.value or b"{}")
-        except (KeyNotFoundError, ValueError):
+        except KeyNotFoundError:
             log.warning("%s: renewing %s: the key is gone (expired)", self.worker, key)
             return False
-        mine = found.get("w") == self.worker and (
-            found.get("epoch") == held.epoch
-            or (found.get("epoch") == 0 and entry.revision == held.epoch)
-        )
-        if not mine:
-            log.warning("%s: renewing %s: the key is %s's now", self.worker, key, found.get("w"))
+        # (A key still as created, epoch 0, would not have refused the compare-and-set.)
+        if entry.value != self._value(held.epoch):
+            log.warning("%s: renewing %s: the key holds %r now", self.worker, key, entry.value)
             return False
         assert entry.revision is not None
         log.warning(
