@@ -7,6 +7,7 @@ PostgreSQL, reached through a :class:`~tests.cable.Cable` the test cuts and mend
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -21,11 +22,14 @@ from kybercore.fleet.service import FleetService
 from kybercore.ledger import records
 from kybercore.ledger.service import LedgerService, _Feed
 from kybercore.ledger.tables import printer_states
+from kybercore.ledger.unwritten import UNWRITTEN
 from kybercore.moonraker.events import Notification
 from kybercore.registry.store import PrinterRegistry, write_printers
 from tests.cable import Cable, to_database
 from tests.helpers import wait_for
 from tests.ledger.test_service import FINISHED
+
+T0 = 1_700_000_000.0
 
 BACK_WITHIN = 30.0
 """The writer retries every second, the timeline every tick; a busy machine is slower."""
@@ -130,23 +134,51 @@ async def _equal(read: Any, expected: Any) -> bool:
     return await read == expected
 
 
-async def test_stopping_while_the_database_is_away_says_what_was_not_written(
+async def test_stopping_while_the_database_is_away_keeps_the_state_changes_for_next_start(
     line: tuple[Cable, AsyncEngine, AsyncEngine],
     tmp_path: Path,
     http: httpx.AsyncClient,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    cable, remote, _ = line
+    cable, remote, direct = line
+    kept = tmp_path / UNWRITTEN
+    fleet = no_printers(tmp_path, http)
     # A tick and a write retry longer than the test: only stop() tries to write.
-    ledger = LedgerService(no_printers(tmp_path, http), remote, tick=3600)
+    ledger = LedgerService(fleet, remote, tick=3600, unwritten=kept)
     await ledger.start()
+    ledger.timeline.observe("p1", "idle", at=T0)
+    await ledger.flush()
     cable.cut()
     hear(ledger, finished("00003C"))
-    ledger.timeline.observe("p1", "printing")
-    caplog.set_level(logging.WARNING, logger="kybercore")
+    ledger.timeline.observe("p1", "printing", at=T0 + 10)
+    caplog.set_level(logging.INFO, logger="kybercore")
+    before = time.time()
     await ledger.stop()
+    after = time.time()
     said = [r.getMessage() for r in caplog.records if "stopping with" in r.getMessage()]
     assert len(said) == 1, [r.getMessage() for r in caplog.records]
     assert "1 jobs heard and 1 state changes seen not written" in said[0]
     assert "the database does not answer" in said[0]
     assert "come back from the printers' Moonraker history" in said[0]
+    assert f"the state changes are kept in {kept}" in said[0]
+    # The next start, the database back: the stop's changes are written, up to the stop.
+    cable.mend()
+    again = LedgerService(fleet, remote, tick=3600, unwritten=kept)
+    await again.start()
+    try:
+        assert not kept.exists()
+        assert any("wrote the 2 state changes a previous run could not" in r.getMessage()
+                   for r in caplog.records)  # fmt: skip
+        intervals = await transaction(direct, _intervals, write=False)
+        assert intervals[:2] == [("idle", T0, T0 + 10), ("printing", T0 + 10, intervals[1][2])]
+        assert before <= intervals[1][2] <= after
+    finally:
+        await again.stop()
+
+
+async def _intervals(conn: Any) -> list[tuple[str, float, float | None]]:
+    s = printer_states.c
+    found = await conn.execute(
+        select(s.state, s.started_at, s.ended_at).where(s.printer == "p1").order_by(s.id)
+    )
+    return [tuple(row) for row in found]

@@ -222,6 +222,35 @@ async def test_a_new_owner_ends_the_old_ones_interval_but_not_the_reverse(
     ]  # fmt: skip
 
 
+async def test_changes_a_stopped_owner_could_not_write_leave_its_successors_alone(
+    database: AsyncEngine,
+) -> None:
+    # `old` stopped while the database was away, keeping its changes; `new` took the
+    # printer over meanwhile. `old`'s next start writes them late: they fill in its own
+    # past, and neither end nor overlap what `new` wrote since.
+    old, new = Timeline(database), Timeline(database)
+    old.observe("p", "idle", T0)
+    await old.flush()
+    old.observe("p", "printing", T0 + 10)
+    old.forget(["p"], T0 + 20)
+    kept = old.unwritten()
+    new.observe("p", "idle", T0 + 30)
+    await new.flush()
+    later = Timeline(database)
+    later.take_back(*kept)
+    assert await later.flush() == 2
+    s = printer_states.c
+    async with database.connect() as conn:
+        intervals = (
+            await conn.execute(select(s.state, s.started_at - T0, s.ended_at - T0).order_by(s.id))
+        ).all()
+    # `new` ended old's open interval on taking over, at 30 as it knew no better; the late
+    # change ends it where it really ended. From 20 to 30 nobody watched the printer.
+    assert [tuple(i) for i in intervals] == [
+        ("idle", 0, 10), ("idle", 30, None), ("printing", 10, 20)
+    ]  # fmt: skip
+
+
 async def test_a_flush_cancelled_mid_write_neither_doubles_nor_loses_an_interval(
     database: AsyncEngine,
 ) -> None:

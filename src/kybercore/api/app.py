@@ -88,6 +88,7 @@ from kybercore.jobs.store import JobStore
 from kybercore.ledger.audit import AuditLog
 from kybercore.ledger.metrics import Source
 from kybercore.ledger.service import LedgerService
+from kybercore.ledger.unwritten import UNWRITTEN
 from kybercore.moonraker.http import new_http_client
 from kybercore.notify.printers import FleetNotifyPrinters
 from kybercore.notify.service import NotifyService
@@ -179,7 +180,7 @@ def create_app(
                 app.state.service = service
                 app.state.queue = queue
                 # -- the ledger (issue 17): history, state timeline, /metrics --------
-                ledger = LedgerService(service, engine)
+                ledger = LedgerService(service, engine, unwritten=folder / UNWRITTEN)
                 app.state.metrics = ledger
                 # -- notifications (issue 18): events to webhooks and Apprise ---------
                 printers = FleetNotifyPrinters(service, http)

@@ -18,6 +18,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Final
 
 from sqlalchemy.ext.asyncio import AsyncEngine
@@ -26,6 +27,7 @@ from kybercore.aio import cancel_and_wait
 from kybercore.db.outage import UNAVAILABLE, Outage, said
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter, Interest
+from kybercore.ledger import unwritten as unwritten_file
 from kybercore.ledger.figures import LoopLag, QueueReader, poll
 from kybercore.ledger.history import (
     PAGE,
@@ -83,11 +85,14 @@ class LedgerService:
         tick: float = 1.0,
         queue_poll: float = 2.0,
         owns: Callable[[str], bool] | None = None,
+        unwritten: Path | None = None,
     ) -> None:
         """``owns(printer_id)``: whether this ledger writes for the printer now (an ingest
         worker on NATS: the printers of the slots it holds; the others' sessions may still
         be open for a grace period). None: every printer of ``fleet``, and the intervals
-        a previous run left open are ended at start (one process writes them all)."""
+        a previous run left open are ended at start (one process writes them all).
+        ``unwritten``: the file that keeps the state changes a stop could not write, for
+        the next start (:mod:`.unwritten`); None: they are lost."""
         self.fleet = fleet
         self.engine = engine
         self.history = HistoryStore(engine)
@@ -110,11 +115,14 @@ class LedgerService:
         self._tasks: list[asyncio.Task[None]] = []
         self._unlisten: Any = None
         self._owns = owns
+        self._unwritten = unwritten
 
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Close what a previous run left open, load the counts, start listening."""
+        """Write what a previous run's stop could not, close what it left open, load the
+        counts, start listening."""
+        await self._take_back()
         if self._owns is None:
             # With several writers, an open interval may be another's: the next change
             # of its printer ends it, whoever writes it.
@@ -151,9 +159,35 @@ class LedgerService:
             log.warning(
                 "stopping with %d jobs heard and %d state changes seen not written (%s); "
                 "the jobs come back from the printers' Moonraker history at the next start, "
-                "the state changes do not",
-                len(self._live), self.timeline.pending, said(exc),
+                "%s",
+                len(self._live), self.timeline.pending, said(exc), await self._keep_unwritten(),
             )  # fmt: skip
+
+    async def _keep_unwritten(self) -> str:
+        """Save the timeline's unwritten changes for the next start; how the log says it."""
+        path = self._unwritten
+        if path is None or not self.timeline.pending:
+            return "the state changes do not"
+        # Every open interval ends now, as close() would have written had it been reached.
+        self.timeline.forget(list(self.timeline.current))
+        try:
+            await asyncio.to_thread(unwritten_file.save, path, self.timeline)
+        except OSError as exc:
+            return f"the state changes do not: they could not be kept in {path} ({exc})"
+        return f"the state changes are kept in {path} and written then"
+
+    async def _take_back(self) -> None:
+        # Before anything is heard: this run's changes come after the previous run's.
+        path = self._unwritten
+        if path is None:
+            return
+        left = await asyncio.to_thread(unwritten_file.load, path)
+        if left is None:
+            return
+        self.timeline.take_back(*left)
+        count = await self.timeline.flush()
+        await asyncio.to_thread(path.unlink, missing_ok=True)
+        log.info("wrote the %d state changes a previous run could not (%s)", count, path)
 
     async def flush(self) -> None:
         """Write the live jobs and state changes heard so far, now."""

@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from sqlalchemy import bindparam, func, select, update
+from sqlalchemy import bindparam, func, or_, select, update
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine
 
 from kybercore.db import transaction
@@ -96,6 +96,17 @@ class Timeline:
             if self._current.pop(printer, None) is not None:
                 self._pending.append(Change(printer, None, when))
 
+    def unwritten(self) -> tuple[list[Change], dict[str, float]]:
+        """What is noted and not written, and the start of each open interval this
+        timeline wrote: what :meth:`take_back` needs to write it in another run."""
+        return list(self._pending), dict(self._opened)
+
+    def take_back(self, changes: list[Change], opened: dict[str, float]) -> None:
+        """Note again what a previous run could not write (its :meth:`unwritten`), ahead
+        of anything noted since; the intervals it opened are ended as it would have."""
+        self._pending[:0] = changes
+        self._opened = {**opened, **self._opened}
+
     async def flush(self) -> int:
         """Write the changes noted so far in one transaction; how many. When it returns,
         every change noted before the call is in the table (one write at a time)."""
@@ -119,8 +130,10 @@ class Timeline:
                 )  # fmt: skip
             first[change.printer] = change
         rows.reverse()
-        # A new state ends whatever interval of the printer is open (a worker taking over
-        # from one that died ends the dead one's); leaving ends only the one this timeline
+        # A new state ends the printer's interval it falls in: the open one (a worker taking
+        # over from one that died ends the dead one's), or, for a change a stopped run could
+        # not write and writes late, the one a successor ended after it (the successor's
+        # own, begun later, stay as they are). Leaving ends only the interval this timeline
         # opened (a paused former owner must not end its successor's).
         taken = [{"p": c.printer, "at": c.at} for c in first.values() if c.state is not None]
         left = [
@@ -134,7 +147,11 @@ class Timeline:
             open_interval = (states.printer == bindparam("p"), states.ended_at.is_(None))
             ending = update(printer_states).values(ended_at=bindparam("at"))
             if taken:
-                await conn.execute(ending.where(*open_interval), taken)
+                falls_in = (
+                    states.started_at <= bindparam("at"),
+                    or_(states.ended_at.is_(None), states.ended_at > bindparam("at")),
+                )
+                await conn.execute(ending.where(states.printer == bindparam("p"), *falls_in), taken)
             if left:
                 since = states.started_at == bindparam("since")
                 await conn.execute(ending.where(*open_interval, since), left)
@@ -187,4 +204,3 @@ class Timeline:
         """Write what is pending and end every open interval (KyberCore is stopping)."""
         self.forget(list(self._current), at)
         await self.flush()
-

@@ -40,6 +40,7 @@ from kybercore.aio import cancel_and_wait
 from kybercore.errors import BrokerUnavailable
 from kybercore.fleet.service import FleetService
 from kybercore.ledger.figures import LoopLag
+from kybercore.ledger.unwritten import UNWRITTEN
 from kybercore.moonraker.link import Connect
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import PrinterRegistry
@@ -121,8 +122,9 @@ class Worker:
         self.ledger = None
         if database is not None:
             self.ledger = WorkerLedger(
-                self.service, database, owns=lambda pid: self._acting_for(self._slot(pid))
-            )
+                self.service, database, owns=lambda pid: self._acting_for(self._slot(pid)),
+                unwritten=folder / UNWRITTEN,
+            )  # fmt: skip
         self._printers: list[PrinterConfig] = []
         self._applied: tuple[int, frozenset[int]] | None = None
         """(registry version, slots) the sessions were last made to match."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import Final
 
 from sqlalchemy.ext.asyncio import AsyncEngine
@@ -34,11 +35,15 @@ RETRY_SECONDS: Final = 5.0
 class WorkerLedger:
     """:meth:`start`, then :meth:`stop`; :attr:`ledger` once the database answered."""
 
-    def __init__(self, service: FleetService, url: str, owns: Callable[[str], bool]) -> None:
-        """``owns(printer_id)``: whether the worker acts for the printer now."""
+    def __init__(
+        self, service: FleetService, url: str, owns: Callable[[str], bool], unwritten: Path
+    ) -> None:
+        """``owns(printer_id)``: whether the worker acts for the printer now; ``unwritten``:
+        the file that keeps the state changes a stop could not write."""
         self._service = service
         self._url = url
         self._owns = owns
+        self._unwritten = unwritten
         self.ledger: LedgerService | None = None
         self._engine: AsyncEngine | None = None
         self._waiting: asyncio.Task[None] | None = None
@@ -64,7 +69,7 @@ class WorkerLedger:
 
     async def _open(self) -> None:
         engine = await open_database(self._url)
-        ledger = LedgerService(self._service, engine, owns=self._owns)
+        ledger = LedgerService(self._service, engine, owns=self._owns, unwritten=self._unwritten)
         try:
             await ledger.start()
         except BaseException:
