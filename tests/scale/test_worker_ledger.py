@@ -11,11 +11,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import func, select
 
 from kybercore.db import open_database, transaction
 from kybercore.ledger.tables import printer_states
+from kybercore.ledger.unwritten import UNWRITTEN
 from kybercore.registry.models import PrinterConfig
 from kybercore.registry.store import write_printers
 from kybercore.scale.broker import LocalServer
@@ -28,18 +30,24 @@ BACK_WITHIN = 60.0
 """The worker tries its database every 5 s; a busy machine is slower."""
 
 
-def states_since(database_url: str, since: float) -> int:
-    """How many state intervals of the printers began after ``since`` (epoch seconds)."""
+def scalar(database_url: str, query: Any) -> Any:
+    """``query``'s one value, read from the database at ``database_url``."""
 
-    async def count() -> int:
+    async def read() -> Any:
         engine = await open_database(database_url)
         try:
-            query = select(func.count()).where(printer_states.c.started_at > since)
-            return int(await transaction(engine, lambda conn: conn.scalar(query), write=False))
+            return await transaction(engine, lambda conn: conn.scalar(query), write=False)
         finally:
             await engine.dispose()
 
-    return asyncio.run(count())
+    return asyncio.run(read())
+
+
+def states_since(database_url: str, since: float) -> int:
+    """How many state intervals of the printers began after ``since`` (epoch seconds)."""
+    return int(
+        scalar(database_url, select(func.count()).where(printer_states.c.started_at > since))
+    )
 
 
 def test_a_worker_restarted_while_its_database_is_away_holds_its_printers_and_ledger_later(
@@ -64,6 +72,9 @@ def test_a_worker_restarted_while_its_database_is_away_holds_its_printers_and_le
         wait_until(lambda: cluster.all_fresh(len(fleet_stacks)), 60, "every printer fresh")
         cable.cut()
         worker.stop()
+        stopped = time.time()
+        kept = worker.folder / UNWRITTEN
+        assert kept.exists(), "the state changes its stop could not write are kept"
         again = cluster.worker("w1")
         wait_until(lambda: len(again.owned()) == SLOTS, SETTLE, "w1 owns every slot again")
         wait_until(lambda: cluster.all_fresh(len(fleet_stacks)), 60, "every printer fresh again")
@@ -78,6 +89,12 @@ def test_a_worker_restarted_while_its_database_is_away_holds_its_printers_and_le
             "the restarted worker's ledger to write the printers' states",
         )  # fmt: skip
         assert "can open the ledger's database again" in (again.folder / "worker.log").read_text()
+        # ... having first written what its stop could not: its intervals end at the stop,
+        # not when it heard its printers again.
+        assert not kept.exists()
+        states = printer_states.c
+        ended = select(func.max(states.ended_at)).where(states.started_at < stopped)
+        assert scalar(postgres_database, ended) <= stopped
     finally:
         cluster.close()
         cable.close()
