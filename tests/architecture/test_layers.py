@@ -22,7 +22,8 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
     "moonraker": ("kybercore.errors", "kybercore.aio"),
     # Pure rules and views: configuration models and Moonraker's object shapes, no I/O.
     "core": ("kybercore.errors", "kybercore.registry.models", "kybercore.moonraker.objects"),
-    "registry": ("kybercore.errors", "kybercore.aio"),
+    # printers.json and the fleet's models; files replaced whole (kybercore.files).
+    "registry": ("kybercore.errors", "kybercore.aio", "kybercore.files"),
     "fleet": (
         "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.moonraker",
         "kybercore.registry",
@@ -38,7 +39,7 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
     # The ledger: job history, state timeline, statistics, metrics. It reads the queue's
     # tables (jobs.tables) and vocabulary, never the queue's workings.
     "ledger": (
-        "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.db",
+        "kybercore.errors", "kybercore.aio", "kybercore.files", "kybercore.core", "kybercore.db",
         "kybercore.fleet", "kybercore.moonraker", "kybercore.registry",
         "kybercore.jobs.models", "kybercore.jobs.tables",
     ),
@@ -49,7 +50,7 @@ ALLOWED: Final[dict[str, tuple[str, ...]]] = {
         "kybercore.fleet", "kybercore.moonraker", "kybercore.registry", "kybercore.jobs",
     ),
     "api": (
-        "kybercore.errors", "kybercore.aio", "kybercore.core", "kybercore.fleet",
+        "kybercore.errors", "kybercore.aio", "kybercore.files", "kybercore.core", "kybercore.fleet",
         "kybercore.moonraker", "kybercore.registry", "kybercore.jobs", "kybercore.db",
         "kybercore.ledger", "kybercore.notify",
     ),

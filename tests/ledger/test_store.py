@@ -24,6 +24,14 @@ T0 = 1_767_225_600.0  # 2026-01-01T00:00:00Z
 DAY = 86400.0
 
 
+async def intervals(database: AsyncEngine) -> list[tuple[Any, ...]]:
+    """Every state interval as (state, start, end), in seconds after T0, in written order."""
+    s = printer_states.c
+    query = select(s.state, s.started_at - T0, s.ended_at - T0).order_by(s.id)
+    async with database.connect() as conn:
+        return [tuple(row) for row in await conn.execute(query)]
+
+
 def job(number: int, status: str = "completed", **fields: Any) -> HistoryJob:
     """A Moonraker history job numbered ``number``, started ``number`` hours after T0."""
     raw = {
@@ -212,12 +220,7 @@ async def test_a_new_owner_ends_the_old_ones_interval_but_not_the_reverse(
     await old.flush()
     new.observe("p", "printing", T0 + 30)
     await new.flush()
-    s = printer_states.c
-    async with database.connect() as conn:
-        intervals = (
-            await conn.execute(select(s.state, s.started_at - T0, s.ended_at - T0).order_by(s.id))
-        ).all()
-    assert [tuple(i) for i in intervals] == [
+    assert await intervals(database) == [
         ("idle", 0, 10), ("idle", 10, 30), ("printing", 30, None)
     ]  # fmt: skip
 
@@ -239,14 +242,9 @@ async def test_changes_a_stopped_owner_could_not_write_leave_its_successors_alon
     later = Timeline(database)
     later.take_back(*kept)
     assert await later.flush() == 2
-    s = printer_states.c
-    async with database.connect() as conn:
-        intervals = (
-            await conn.execute(select(s.state, s.started_at - T0, s.ended_at - T0).order_by(s.id))
-        ).all()
     # `new` ended old's open interval on taking over, at 30 as it knew no better; the late
     # change ends it where it really ended. From 20 to 30 nobody watched the printer.
-    assert [tuple(i) for i in intervals] == [
+    assert await intervals(database) == [
         ("idle", 0, 10), ("idle", 30, None), ("printing", 10, 20)
     ]  # fmt: skip
 

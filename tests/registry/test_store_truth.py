@@ -17,7 +17,7 @@ from pathlib import Path
 import filelock
 import pytest
 
-from kybercore.registry import store
+from kybercore import files
 from kybercore.registry.models import PrinterCreate, PrinterUpdate
 from kybercore.registry.store import PrinterRegistry, read_printers
 from tests.helpers import WATCHDOG, loop_watchdog
@@ -40,8 +40,8 @@ def test_a_failed_folder_fsync_after_the_replace_says_the_file_changed(
     def failing_dir_fsync(_folder: Path) -> None:
         raise OSError(5, "Input/output error")
 
-    monkeypatch.setattr(store, "_fsync_dir", failing_dir_fsync)
-    with caplog.at_level(logging.WARNING, logger="kybercore.registry.store"):
+    monkeypatch.setattr(files, "_fsync_dir", failing_dir_fsync)
+    with caplog.at_level(logging.WARNING, logger="kybercore.files"):
         added = registry.add(new("B"))
     # The replace happened: the file, the registry and the answer all hold B.
     assert added.id == "b"

@@ -20,9 +20,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
-import os
 import secrets
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -32,6 +30,7 @@ from typing import Final, Literal
 import filelock
 
 from kybercore.errors import ConfigError, InvalidInput
+from kybercore.files import replace_file
 from kybercore.registry.store import Signature, file_signature
 
 Role = Literal["viewer", "operator", "admin"]
@@ -166,15 +165,8 @@ class TokenStore:
             ) from None
 
     def _write(self, records: list[TokenRecord]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         body = json.dumps({"version": 1, "tokens": [asdict(r) for r in records]}, indent=2)
-        fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=".tokens-", suffix=".tmp")
-        with os.fdopen(fd, "w") as handle:
-            handle.write(body + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(tmp, 0o600)
-        os.replace(tmp, self.path)
+        replace_file(self.path, (body + "\n").encode())
         self._cache = None
 
 

@@ -13,10 +13,10 @@ import json
 import logging
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Final
 
+from kybercore.files import replace_file
 from kybercore.ledger.timeline import STATES, Change, Timeline
 
 log = logging.getLogger(__name__)
@@ -30,24 +30,9 @@ UNWRITTEN: Final = "ledger-unwritten.json"
 def save(path: Path, timeline: Timeline) -> None:
     """Write what ``timeline`` could not (blocking: run it in a thread). Raises OSError."""
     changes, opened = timeline.unwritten()
-    body = json.dumps(
-        {
-            "version": VERSION,
-            "changes": [[c.printer, c.state, c.at] for c in changes],
-            "opened": opened,
-        }
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(body)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    changed = [[c.printer, c.state, c.at] for c in changes]
+    body = json.dumps({"version": VERSION, "changes": changed, "opened": opened})
+    replace_file(path, body.encode())
 
 
 def load(path: Path) -> tuple[list[Change], dict[str, float]] | None:

@@ -24,7 +24,6 @@ import inspect
 import logging
 import os
 import shutil
-import tempfile
 import threading
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
@@ -34,6 +33,7 @@ from typing import Any, Final
 import filelock
 
 from kybercore.errors import ConfigError, UnknownPrinter
+from kybercore.files import replace_file
 from kybercore.registry import changes
 from kybercore.registry.format import backup_path, dump_printers, parse_printers
 from kybercore.registry.models import PrinterConfig, PrinterCreate, PrinterUpdate
@@ -78,32 +78,13 @@ def write_printers(path: Path, printers: list[PrinterConfig]) -> None:
     old file is intact and the temp file is removed; once the new file is in place, a
     failed fsync of the folder is logged as a warning, not raised (the file did change).
     """
-    data = dump_printers(printers)
-    # mkstemp creates the file 0600: it holds API keys.
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    tmp = Path(tmp_name)
-    try:
-        with os.fdopen(fd, "wb") as tmp_file:
-            tmp_file.write(data)
-            tmp_file.flush()
-            os.fsync(tmp_file.fileno())
+    data = dump_printers(printers)  # API keys: replace_file creates the file 0600
+
+    def keep_backup() -> None:
         if path.exists():
             _backup(path)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    try:
-        _fsync_dir(path.parent)
-    except OSError as exc:
-        # The new file is in place: the write happened, and saying "not changed" would be
-        # false. Only whether it survives a power cut in the next seconds is in doubt.
-        log.warning(
-            "%s: written, but its folder could not be synced (%s); a power cut in the next "
-            "seconds could bring back the previous version.",
-            path,
-            exc,
-        )
+
+    replace_file(path, data, before_replace=keep_backup)
 
 
 def _backup(path: Path) -> None:
@@ -115,14 +96,6 @@ def _backup(path: Path) -> None:
     except OSError:  # a filesystem without hardlinks
         shutil.copy2(path, bak_tmp)
     os.replace(bak_tmp, backup_path(path))
-
-
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def file_signature(path: Path) -> Signature:
