@@ -3,8 +3,8 @@ in a file beside the process's other data and written at its next start.
 
 The jobs heard meanwhile need no such file: they come back from each printer's Moonraker
 history. The state changes exist only in the process that saw them. The file is replaced
-atomically (a temp file, fsync, rename), so a crash leaves the old one or the new one, and
-it is removed only once its changes are in the database.
+whole (:func:`~kybercore.files.replace_file`), and removed only once its changes are in the
+database.
 """
 
 from __future__ import annotations
