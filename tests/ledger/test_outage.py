@@ -88,7 +88,10 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     cable, remote, direct = line
-    ledger = LedgerService(no_printers(tmp_path, http), remote, tick=0.05, queue_poll=0.05)
+    kept = tmp_path / UNWRITTEN
+    ledger = LedgerService(
+        no_printers(tmp_path, http), remote, tick=0.05, queue_poll=0.05, unwritten=kept
+    )
     await ledger.start()
     try:
         hear(ledger, finished("00001A"))
@@ -109,6 +112,8 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
             and said("cannot read the queue's gates"),
             BACK_WITHIN, "the ledger to find the database away",
         )  # fmt: skip
+        # Kept on disk meanwhile (a process killed now would not lose it) ...
+        await wait_for(kept.exists, BACK_WITHIN, "the state change kept on disk")
         cable.mend()
         await wait_for(
             lambda: _equal(jobs_written(direct), {"00001A", "00002B"}), BACK_WITHIN,
@@ -118,6 +123,8 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
             lambda: _equal(states_written(direct, "p1"), ["printing"]), BACK_WITHIN,
             "the state seen during the cut written",
         )  # fmt: skip
+        # ... and the file goes once it is written: a next start would not take it back.
+        await wait_for(lambda: not kept.exists(), BACK_WITHIN, "the kept file removed")
         assert all(not task.done() for task in ledger._tasks), "a ledger task died"
         # Said once the write returns, which is after its commit the test saw.
         await wait_for(
@@ -128,6 +135,39 @@ async def test_a_database_cut_off_loses_nothing_the_ledger_heard(
     finally:
         await ledger.stop()
     assert await jobs_written(direct) == {"00001A", "00002B"}  # each once
+
+
+async def test_a_process_killed_while_the_database_is_away_loses_no_state_change(
+    line: tuple[Cable, AsyncEngine, AsyncEngine],
+    tmp_path: Path,
+    http: httpx.AsyncClient,
+) -> None:
+    cable, remote, direct = line
+    kept = tmp_path / UNWRITTEN
+    fleet = no_printers(tmp_path, http)
+    ledger = LedgerService(fleet, remote, tick=0.05, unwritten=kept)
+    await ledger.start()
+    cable.cut()
+    ledger.timeline.observe("p1", "printing", at=T0)
+    await wait_for(kept.exists, BACK_WITHIN, "the state change kept on disk")
+    # Killed: its tasks end where they are, and nothing of stop() runs.
+    ledger._unlisten()
+    for task in ledger._tasks:
+        task.cancel()
+    killed = time.time()
+    cable.mend()
+    again = LedgerService(fleet, remote, tick=3600, unwritten=kept)
+    await again.start()
+    try:
+        assert not kept.exists()
+        # Ended where the killed run saw p1 leave (p1 is in no fleet here: its sweep
+        # forgot it), kept on disk with it.
+        [(state, started, ended)] = await transaction(direct, _intervals, write=False)
+        assert (state, started) == ("printing", T0)
+        assert ended is not None
+        assert T0 < ended <= killed
+    finally:
+        await again.stop()
 
 
 async def _equal(read: Any, expected: Any) -> bool:

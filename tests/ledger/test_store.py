@@ -240,12 +240,38 @@ async def test_changes_a_stopped_owner_could_not_write_leave_its_successors_alon
     new.observe("p", "idle", T0 + 30)
     await new.flush()
     later = Timeline(database)
-    later.take_back(*kept)
+    await later.take_back(*kept)
     assert await later.flush() == 2
     # `new` ended old's open interval on taking over, at 30 as it knew no better; the late
     # change ends it where it really ended. From 20 to 30 nobody watched the printer.
     assert await intervals(database) == [
         ("idle", 0, 10), ("idle", 30, None), ("printing", 10, 20)
+    ]  # fmt: skip
+
+
+async def test_changes_taken_back_that_were_written_already_are_not_written_twice(
+    database: AsyncEngine,
+) -> None:
+    # A run kept its changes during an outage, wrote them once the database answered, and
+    # was killed before it removed its file: the next start finds them in both.
+    old = Timeline(database)
+    old.observe("p", "idle", T0)
+    await old.flush()
+    old.observe("p", "printing", T0 + 10)
+    kept = old.unwritten()
+    await old.flush()
+    later = Timeline(database)
+    await later.take_back(*kept)
+    assert later.pending == 0
+    old.observe("p", "paused", T0 + 20)
+    old.forget(["p"], T0 + 30)
+    changes, opened = old.unwritten()
+    again = Timeline(database)
+    await again.take_back(kept[0] + changes, opened)  # written and not: only the latter
+    assert again.pending == 2  # the pause and the leaving
+    await again.flush()
+    assert await intervals(database) == [
+        ("idle", 0, 10), ("printing", 10, 20), ("paused", 20, 30)
     ]  # fmt: skip
 
 

@@ -13,13 +13,13 @@ from kybercore.ledger import unwritten
 from kybercore.ledger.timeline import Change, Timeline
 
 
-def test_the_changes_and_open_intervals_come_back_as_written(
+async def test_the_changes_and_open_intervals_come_back_as_written(
     tmp_path: Path, database: AsyncEngine
 ) -> None:
     path = tmp_path / "worker" / unwritten.UNWRITTEN
     assert unwritten.load(path) is None
     timeline = Timeline(database)
-    timeline.take_back([], {"p1": 5.0})
+    await timeline.take_back([], {"p1": 5.0})
     timeline.observe("p1", "printing", 10.0)
     timeline.forget(["p1"], 20.5)
     unwritten.save(path, timeline)

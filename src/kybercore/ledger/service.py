@@ -27,7 +27,6 @@ from kybercore.aio import cancel_and_wait
 from kybercore.db.outage import UNAVAILABLE, Outage, said
 from kybercore.fleet.service import FleetService
 from kybercore.fleet.sessions import FleetPrinter, Interest
-from kybercore.ledger import unwritten as unwritten_file
 from kybercore.ledger.figures import LoopLag, QueueReader, poll
 from kybercore.ledger.history import (
     PAGE,
@@ -39,6 +38,7 @@ from kybercore.ledger.history import (
 )
 from kybercore.ledger.metrics import Snapshot
 from kybercore.ledger.timeline import Timeline, printer_state
+from kybercore.ledger.unwritten import UnwrittenFile
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -115,14 +115,15 @@ class LedgerService:
         self._tasks: list[asyncio.Task[None]] = []
         self._unlisten: Any = None
         self._owns = owns
-        self._unwritten = unwritten
+        self._unwritten = None if unwritten is None else UnwrittenFile(unwritten, self.timeline)
 
     # -- lifecycle ---------------------------------------------------------------------
 
     async def start(self) -> None:
         """Write what a previous run's stop could not, close what it left open, load the
         counts, start listening."""
-        await self._take_back()
+        if self._unwritten is not None:
+            await self._unwritten.take_back()
         if self._owns is None:
             # With several writers, an open interval may be another's: the next change
             # of its printer ends it, whoever writes it.
@@ -155,39 +156,18 @@ class LedgerService:
         try:
             await self.flush()
             await self.timeline.close()
+            if self._unwritten is not None:
+                await self._unwritten.written()
         except UNAVAILABLE as exc:
+            pending, kept = self.timeline.pending, "the state changes do not"
+            if self._unwritten is not None:
+                kept = await self._unwritten.keep_at_stop()
             log.warning(
                 "stopping with %d jobs heard and %d state changes seen not written (%s); "
                 "the jobs come back from the printers' Moonraker history at the next start, "
                 "%s",
-                len(self._live), self.timeline.pending, said(exc), await self._keep_unwritten(),
+                len(self._live), pending, said(exc), kept,
             )  # fmt: skip
-
-    async def _keep_unwritten(self) -> str:
-        """Save the timeline's unwritten changes for the next start; how the log says it."""
-        path = self._unwritten
-        if path is None or not self.timeline.pending:
-            return "the state changes do not"
-        # Every open interval ends now, as close() would have written had it been reached.
-        self.timeline.forget(list(self.timeline.current))
-        try:
-            await asyncio.to_thread(unwritten_file.save, path, self.timeline)
-        except OSError as exc:
-            return f"the state changes do not: they could not be kept in {path} ({exc})"
-        return f"the state changes are kept in {path} and written then"
-
-    async def _take_back(self) -> None:
-        # Before anything is heard: this run's changes come after the previous run's.
-        path = self._unwritten
-        if path is None:
-            return
-        left = await asyncio.to_thread(unwritten_file.load, path)
-        if left is None:
-            return
-        self.timeline.take_back(*left)
-        count = await self.timeline.flush()
-        await asyncio.to_thread(path.unlink, missing_ok=True)
-        log.info("wrote the %d state changes a previous run could not (%s)", count, path)
 
     async def flush(self) -> None:
         """Write the live jobs and state changes heard so far, now."""
@@ -378,5 +358,9 @@ class LedgerService:
                 await self.timeline.flush()
             except UNAVAILABLE as exc:
                 outage.failed(exc)
+                if self._unwritten is not None:
+                    await self._unwritten.keep()
             else:
                 outage.ended()
+                if self._unwritten is not None:
+                    await self._unwritten.written()

@@ -101,10 +101,24 @@ class Timeline:
         timeline wrote: what :meth:`take_back` needs to write it in another run."""
         return list(self._pending), dict(self._opened)
 
-    def take_back(self, changes: list[Change], opened: dict[str, float]) -> None:
+    async def take_back(self, changes: list[Change], opened: dict[str, float]) -> None:
         """Note again what a previous run could not write (its :meth:`unwritten`), ahead
-        of anything noted since; the intervals it opened are ended as it would have."""
-        self._pending[:0] = changes
+        of anything noted since; the intervals it opened are ended as it would have. A
+        change already in the table is left out: that run wrote it and was killed before
+        it could say so (its file was kept during an outage and not removed yet)."""
+        starts = [c.at for c in changes if c.state is not None]
+
+        async def work(conn: AsyncConnection) -> set[tuple[str, float]]:
+            s = printer_states.c
+            found = await conn.execute(
+                select(s.printer, s.started_at).where(s.started_at >= min(starts))
+            )
+            return {(row.printer, row.started_at) for row in found}
+
+        written = await transaction(self._engine, work, write=False) if starts else set()
+        self._pending[:0] = [
+            c for c in changes if c.state is None or (c.printer, c.at) not in written
+        ]
         self._opened = {**opened, **self._opened}
 
     async def flush(self) -> int:
