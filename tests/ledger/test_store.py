@@ -13,9 +13,11 @@ from sqlalchemy import func, select
 from sqlalchemy.engine import Connection
 from sqlalchemy.ext.asyncio import AsyncEngine
 
+from kybercore.errors import DatabaseUnavailable
 from kybercore.jobs.models import JobFile, NewJob
 from kybercore.jobs.store import JobStore
 from kybercore.ledger import records, stats
+from kybercore.ledger import timeline as timeline_module
 from kybercore.ledger.history import HistoryJob, HistoryStore, parse_job
 from kybercore.ledger.tables import history_jobs, metadata, printer_states
 from kybercore.ledger.timeline import Timeline
@@ -240,7 +242,7 @@ async def test_changes_a_stopped_owner_could_not_write_leave_its_successors_alon
     new.observe("p", "idle", T0 + 30)
     await new.flush()
     later = Timeline(database)
-    await later.take_back(*kept)
+    later.take_back(*kept)
     assert await later.flush() == 2
     # `new` ended old's open interval on taking over, at 30 as it knew no better; the late
     # change ends it where it really ended. From 20 to 30 nobody watched the printer.
@@ -261,15 +263,46 @@ async def test_changes_taken_back_that_were_written_already_are_not_written_twic
     kept = old.unwritten()
     await old.flush()
     later = Timeline(database)
-    await later.take_back(*kept)
-    assert later.pending == 0
+    later.take_back(*kept)
+    assert await later.flush() == 0
     old.observe("p", "paused", T0 + 20)
     old.forget(["p"], T0 + 30)
     changes, opened = old.unwritten()
     again = Timeline(database)
-    await again.take_back(kept[0] + changes, opened)  # written and not: only the latter
-    assert again.pending == 2  # the pause and the leaving
-    await again.flush()
+    again.take_back(kept[0] + changes, opened)  # written and not: only the latter
+    assert await again.flush() == 2  # the pause and the leaving
+    assert await intervals(database) == [
+        ("idle", 0, 10), ("printing", 10, 20), ("paused", 20, 30)
+    ]  # fmt: skip
+
+
+async def test_a_write_whose_reply_was_lost_is_not_written_again(
+    database: AsyncEngine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The line cut mid-commit: the rows are in, yet the write failed. No real server loses
+    # a reply on demand, so the fault is injected right after a real commit.
+    real, reply = timeline_module.transaction, {"lost": False}
+
+    async def reply_lost(engine: AsyncEngine, work: Any, *, write: bool = True) -> Any:
+        done = await real(engine, work, write=write)
+        if write and reply["lost"]:
+            reply["lost"] = False
+            raise DatabaseUnavailable("connection lost while committing")
+        return done
+
+    monkeypatch.setattr(timeline_module, "transaction", reply_lost)
+    timeline = Timeline(database)
+    timeline.observe("p", "idle", T0)
+    await timeline.flush()
+    timeline.observe("p", "printing", T0 + 10)
+    reply["lost"] = True
+    with pytest.raises(DatabaseUnavailable):
+        await timeline.flush()
+    assert timeline.pending == 1  # for all it knows, not written
+    timeline.observe("p", "paused", T0 + 20)
+    assert await timeline.flush() == 1  # the pause only: the print start is there
+    timeline.forget(["p"], T0 + 30)  # ends the pause, which this timeline knows it opened
+    await timeline.flush()
     assert await intervals(database) == [
         ("idle", 0, 10), ("printing", 10, 20), ("paused", 20, 30)
     ]  # fmt: skip

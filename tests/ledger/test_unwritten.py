@@ -19,7 +19,7 @@ async def test_the_changes_and_open_intervals_come_back_as_written(
     path = tmp_path / "worker" / unwritten.UNWRITTEN
     assert unwritten.load(path) is None
     timeline = Timeline(database)
-    await timeline.take_back([], {"p1": 5.0})
+    timeline.take_back([], {"p1": 5.0})
     timeline.observe("p1", "printing", 10.0)
     timeline.forget(["p1"], 20.5)
     unwritten.save(path, timeline)
@@ -28,6 +28,17 @@ async def test_the_changes_and_open_intervals_come_back_as_written(
         {"p1": 5.0},
     )
     assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temp file left
+
+
+async def test_a_stop_with_every_change_written_keeps_no_file_and_says_so(
+    tmp_path: Path, database: AsyncEngine
+) -> None:
+    timeline = Timeline(database)
+    timeline.observe("p1", "idle", 10.0)
+    await timeline.flush()
+    kept = unwritten.UnwrittenFile(tmp_path / unwritten.UNWRITTEN, timeline)
+    assert await kept.keep_at_stop() == unwritten.NONE_LEFT
+    assert not kept.path.exists()
 
 
 @pytest.mark.parametrize(

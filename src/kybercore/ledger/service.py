@@ -38,7 +38,7 @@ from kybercore.ledger.history import (
 )
 from kybercore.ledger.metrics import Snapshot
 from kybercore.ledger.timeline import Timeline, printer_state
-from kybercore.ledger.unwritten import UnwrittenFile
+from kybercore.ledger.unwritten import NONE_LEFT, UnwrittenFile
 from kybercore.moonraker.backoff import Backoff
 from kybercore.moonraker.events import (
     ConnectionChanged,
@@ -159,7 +159,8 @@ class LedgerService:
             if self._unwritten is not None:
                 await self._unwritten.written()
         except UNAVAILABLE as exc:
-            pending, kept = self.timeline.pending, "the state changes do not"
+            pending = self.timeline.pending
+            kept = "the state changes do not" if pending else NONE_LEFT
             if self._unwritten is not None:
                 kept = await self._unwritten.keep_at_stop()
             log.warning(

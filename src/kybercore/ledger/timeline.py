@@ -71,6 +71,9 @@ class Timeline:
         self._pending: list[Change] = []
         self._opened: dict[str, float] = {}
         """Printer -> start of the open interval this timeline wrote."""
+        self._unsure: list[Change] = []
+        """Pending changes that may be in the table already: a write whose commit went
+        through though its reply was lost, or a previous run's (:meth:`take_back`)."""
         self._writing = asyncio.Lock()
 
     @property
@@ -101,24 +104,14 @@ class Timeline:
         timeline wrote: what :meth:`take_back` needs to write it in another run."""
         return list(self._pending), dict(self._opened)
 
-    async def take_back(self, changes: list[Change], opened: dict[str, float]) -> None:
+    def take_back(self, changes: list[Change], opened: dict[str, float]) -> None:
         """Note again what a previous run could not write (its :meth:`unwritten`), ahead
         of anything noted since; the intervals it opened are ended as it would have. A
-        change already in the table is left out: that run wrote it and was killed before
-        it could say so (its file was kept during an outage and not removed yet)."""
-        starts = [c.at for c in changes if c.state is not None]
-
-        async def work(conn: AsyncConnection) -> set[tuple[str, float]]:
-            s = printer_states.c
-            found = await conn.execute(
-                select(s.printer, s.started_at).where(s.started_at >= min(starts))
-            )
-            return {(row.printer, row.started_at) for row in found}
-
-        written = await transaction(self._engine, work, write=False) if starts else set()
-        self._pending[:0] = [
-            c for c in changes if c.state is None or (c.printer, c.at) not in written
-        ]
+        change already in the table is left out at the next :meth:`flush`: that run wrote
+        it and was killed before it could say so (its file was kept during an outage and
+        not removed yet)."""
+        self._pending[:0] = changes
+        self._unsure[:0] = changes
         self._opened = {**opened, **self._opened}
 
     async def flush(self) -> int:
@@ -128,6 +121,8 @@ class Timeline:
             return await self._flush()
 
     async def _flush(self) -> int:
+        if self._unsure:
+            await self._leave_out_written()
         changes, self._pending = self._pending, []
         if not changes:
             return 0
@@ -182,14 +177,48 @@ class Timeline:
             if not write.done():
                 await asyncio.wait({write})
             if write.cancelled() or write.exception() is not None:
-                self._pending[:0] = changes  # written next time, in order
+                # Written next time, in order; unless the commit went through and only its
+                # reply was lost (the line cut mid-commit): then each would be there twice.
+                self._pending[:0] = changes
+                self._unsure = changes
             else:
-                for change in changes:
-                    if change.state is None:
-                        self._opened.pop(change.printer, None)
-                    else:
-                        self._opened[change.printer] = change.at
+                self._written(changes)
         return len(changes)
+
+    def _written(self, changes: Iterable[Change]) -> None:
+        """The table holds ``changes``: follow the intervals this timeline opened."""
+        for change in changes:
+            if change.state is None:
+                self._opened.pop(change.printer, None)
+            else:
+                self._opened[change.printer] = change.at
+
+    async def _leave_out_written(self) -> None:
+        """Take out of the pending changes the unsure ones the table has (a row of the
+        same printer begun at the same moment), each on its own: a previous run may have
+        written a part. Leaving a printer, written again, ends nothing a second time."""
+        unsure = {(c.printer, c.at) for c in self._unsure if c.state is not None}
+        if unsure:
+            starts = [at for _, at in unsure]
+            s = printer_states.c
+            # The rows begun in the changes' span (every printer's: a list of printers as
+            # long as a fleet would pass the drivers' limits on bound parameters).
+            query = select(s.printer, s.started_at).where(
+                s.started_at >= min(starts), s.started_at <= max(starts)
+            )
+
+            async def work(conn: AsyncConnection) -> set[tuple[str, float]]:
+                return {(row.printer, row.started_at) for row in await conn.execute(query)}
+
+            found = unsure & await transaction(self._engine, work, write=False)
+            done: list[Change] = []
+            left: list[Change] = []
+            for change in self._pending:
+                there = change.state is not None and (change.printer, change.at) in found
+                (done if there else left).append(change)
+            self._written(done)
+            self._pending = left
+        self._unsure = []
 
     async def recover(self) -> None:
         """End the intervals a previous run left open (it stopped without :meth:`close`),

@@ -30,6 +30,8 @@ VERSION: Final = 1
 
 UNWRITTEN: Final = "ledger-unwritten.json"
 """The file's name in a process's data folder (beside printers.json, or a worker's)."""
+NONE_LEFT: Final = "and no state change is left unwritten"
+"""How a stop's log ends when every state change seen was written."""
 
 
 KEEP_EVERY: Final = 10.0
@@ -57,7 +59,7 @@ class UnwrittenFile:
         left = await asyncio.to_thread(load, self.path)
         if left is None:
             return
-        await self._timeline.take_back(*left)
+        self._timeline.take_back(*left)
         count = await self._timeline.flush()
         await asyncio.to_thread(self.path.unlink, missing_ok=True)
         log.info("wrote the %d state changes a previous run could not (%s)", count, self.path)
@@ -90,7 +92,7 @@ class UnwrittenFile:
         (as the stop's close() would have written); how the log says it."""
         if not self._timeline.pending:
             await self.written()
-            return "the state changes do not"
+            return NONE_LEFT
         self._timeline.forget(list(self._timeline.current))
         try:
             await asyncio.to_thread(save, self.path, self._timeline)
