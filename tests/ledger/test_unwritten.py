@@ -30,15 +30,22 @@ async def test_the_changes_and_open_intervals_come_back_as_written(
     assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temp file left
 
 
-async def test_a_stop_with_every_change_written_keeps_no_file_and_says_so(
+async def test_a_stop_keeps_the_open_intervals_ends_and_says_when_nothing_is_left(
     tmp_path: Path, database: AsyncEngine
 ) -> None:
+    # The stop could not write (the history's write failed first): every change is in the
+    # table, but the intervals still open must end at the stop, not at the next start.
     timeline = Timeline(database)
     timeline.observe("p1", "idle", 10.0)
     await timeline.flush()
     kept = unwritten.UnwrittenFile(tmp_path / unwritten.UNWRITTEN, timeline)
-    assert await kept.keep_at_stop() == unwritten.NONE_LEFT
-    assert not kept.path.exists()
+    assert "kept in" in await kept.keep_at_stop()
+    changes, _ = unwritten.load(kept.path) or ([], {})
+    assert [(c.printer, c.state) for c in changes] == [("p1", None)]
+    # A fleet with nothing open and nothing unwritten: no file, and the log says so.
+    empty = unwritten.UnwrittenFile(tmp_path / "other" / unwritten.UNWRITTEN, Timeline(database))
+    assert await empty.keep_at_stop() == unwritten.NONE_LEFT
+    assert not empty.path.exists()
 
 
 @pytest.mark.parametrize(

@@ -90,10 +90,12 @@ class UnwrittenFile:
     async def keep_at_stop(self) -> str:
         """Save the unwritten changes for the next start, every open interval ended now
         (as the stop's close() would have written); how the log says it."""
+        # Also when every change was written: the stop's close() did not run, so the open
+        # intervals would otherwise end at the next start's guess (Timeline.recover).
+        self._timeline.forget(list(self._timeline.current))
         if not self._timeline.pending:
             await self.written()
             return NONE_LEFT
-        self._timeline.forget(list(self._timeline.current))
         try:
             await asyncio.to_thread(save, self.path, self._timeline)
         except OSError as exc:
