@@ -198,26 +198,28 @@ class Timeline:
         same printer begun at the same moment), each on its own: a previous run may have
         written a part. Leaving a printer, written again, ends nothing a second time."""
         unsure = {(c.printer, c.at) for c in self._unsure if c.state is not None}
-        if unsure:
-            starts = [at for _, at in unsure]
-            s = printer_states.c
-            # The rows begun in the changes' span (every printer's: a list of printers as
-            # long as a fleet would pass the drivers' limits on bound parameters).
-            query = select(s.printer, s.started_at).where(
-                s.started_at >= min(starts), s.started_at <= max(starts)
-            )
+        if not unsure:
+            self._unsure = []
+            return
+        starts = [at for _, at in unsure]
+        s = printer_states.c
+        # The rows begun in the changes' span (every printer's: a list of printers as long
+        # as a fleet would pass the drivers' limits on bound parameters).
+        query = select(s.printer, s.started_at).where(
+            s.started_at >= min(starts), s.started_at <= max(starts)
+        )
 
-            async def work(conn: AsyncConnection) -> set[tuple[str, float]]:
-                return {(row.printer, row.started_at) for row in await conn.execute(query)}
+        async def work(conn: AsyncConnection) -> set[tuple[str, float]]:
+            return {(row.printer, row.started_at) for row in await conn.execute(query)}
 
-            found = unsure & await transaction(self._engine, work, write=False)
-            done: list[Change] = []
-            left: list[Change] = []
-            for change in self._pending:
-                there = change.state is not None and (change.printer, change.at) in found
-                (done if there else left).append(change)
-            self._written(done)
-            self._pending = left
+        found = unsure & await transaction(self._engine, work, write=False)
+        done: list[Change] = []
+        left: list[Change] = []
+        for change in self._pending:
+            there = change.state is not None and (change.printer, change.at) in found
+            (done if there else left).append(change)
+        self._written(done)
+        self._pending = left
         self._unsure = []
 
     async def recover(self) -> None:
