@@ -93,6 +93,16 @@ def test_what_the_queue_cannot_take_is_refused_in_words(edge_server: StartEdge) 
         assert bad_json.status_code == 422, bad_json.text
         assert "path" in {f["field"] for f in bad_json.json()["error"]["fields"]}
 
+        broken = client.post(
+            "/api/queue", content=b'{"paused": tru', headers={"Content-Type": "application/json"}
+        )
+        assert broken.status_code == 422, broken.text
+        [field] = broken.json()["error"]["fields"]
+        assert field["field"] == "body"
+        assert field["en"].startswith("The body is not valid JSON at character 11 (Expecting")
+        assert field["es"].startswith("El cuerpo no es JSON válido en el carácter 11")
+        assert "Send a JSON object" in broken.json()["error"]["message"]
+
         escaping = client.post("/api/jobs", json={"printer": "x", "path": "../printer.cfg"})
         assert escaping.status_code == 422, escaping.text
 

@@ -131,7 +131,6 @@ _ES_FIELD_ERRORS: Final = {
     "string_too_long": "Es demasiado largo.",
     "string_pattern_mismatch": "El formato no es válido.",
     "extra_forbidden": "Este campo no existe.",
-    "json_invalid": "El JSON no es válido.",
     "greater_than": "El valor es demasiado pequeño.",
     "greater_than_equal": "El valor es demasiado pequeño.",
     "less_than": "El valor es demasiado grande.",
@@ -173,13 +172,32 @@ async def validation_error_handler(_request: Request, exc: RequestValidationErro
     # Built from locations and messages only: the input itself may hold an API key.
     fields = []
     for error in exc.errors():
+        kind = str(error.get("type", ""))
+        if kind == "json_invalid":
+            fields.append(_not_json(error))
+            continue
         where = ".".join(str(part) for part in error.get("loc", ()) if part != "body") or "body"
         message = str(error.get("msg", "invalid"))
-        kind = str(error.get("type", ""))
         spanish = _spanish(kind, message, error.get("ctx") or {})
         fields.append({"field": where, "en": message, "es": spanish})
     summary = "; ".join(f"{f['field']}: {f['en']}" for f in fields)
     return error_response(422, "invalid_input", f"Invalid request. {summary}", fields=fields)
+
+
+def _not_json(error: Mapping[str, Any]) -> dict[str, str]:
+    """A body that is not JSON: where it breaks and what the parser expected there (its
+    location is the character's offset, which as a field name read "1: JSON decode error")."""
+    location = error.get("loc", ())
+    offset = location[-1] if len(location) > 1 and isinstance(location[-1], int) else None
+    at_en = "" if offset is None else f" at character {offset}"
+    at_es = "" if offset is None else f" en el carácter {offset}"
+    detail = str((error.get("ctx") or {}).get("error", "")).strip()
+    why = f" ({detail})" if detail else ""
+    return {
+        "field": "body",
+        "en": f"The body is not valid JSON{at_en}{why}. Send a JSON object.",
+        "es": f"El cuerpo no es JSON válido{at_es}{why}. Envíe un objeto JSON.",
+    }
 
 
 async def http_error_handler(_request: Request, exc: StarletteHTTPException) -> Response:
