@@ -84,6 +84,8 @@ async def test_field_errors_come_in_spanish_too() -> None:
         (PrinterCreate, {"name": "X", "moonraker_url": "ftp://x"}),
         (PrinterCreate, {"name": "X", "moonraker_url": "http://x:7125/server/info"}),
         (Pick, {"mode": "grid", "count": "many"}),
+        (Pick, {"mode": "tiles", "count": 1.5}),
+        (Pick, []),
     ):
         with pytest.raises(ValidationError) as invalid:
             model.model_validate(data)
@@ -96,6 +98,7 @@ async def test_field_errors_come_in_spanish_too() -> None:
     assert spanish[1].startswith("la URL debe ser solo la dirección de Moonraker, sin ruta")
     assert fields["mode"] == "Debe ser uno de: 'tiles' o 'table'."
     assert fields["count"] == "Debe ser un número entero."
+    assert spanish[-2:] == ["Debe ser un número entero.", "Debe ser un objeto."]
     for text in spanish:
         assert "must" not in text
         assert "should" not in text
