@@ -74,7 +74,7 @@ def test_add_list_show_and_cancel_a_job(kybercore_server: KyberCoreServer, gcode
 
         shown = run(url, "jobs", "show", job_id)
         assert shown.exit_code == 0, shown.output
-        assert "0 done, 0 printing or awaiting a clear, 3 left, of 3" in shown.stdout
+        assert "0 done, 0 printing, 0 awaiting a clear, 3 left, of 3" in shown.stdout
         assert "Why it is not printing:" in shown.stdout
         assert "2099" in shown.stdout  # the start time holds it back, and /why says so
 

@@ -68,6 +68,8 @@ async def assert_consistent(store: JobStore) -> None:
         held = [a for a in mine if a.live or (a.state == "completed" and a.verdict is None)]
         good = [a for a in mine if a.state == "completed" and a.verdict == "good"]
         assert job.in_flight == len(held), (job, held)
+        printed = [a for a in held if a.state == "completed"]
+        assert job.awaiting_clear == len(printed), (job, printed)
         assert job.done == len(good), (job, good)
         copies = [a.copy for a in held + good]
         assert len(copies) == len(set(copies)), f"two attempts hold one copy: {mine}"

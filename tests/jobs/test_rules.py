@@ -99,7 +99,7 @@ def job(
         id=jid, file=file, quantity=quantity, priority=priority,
         position=float(jid) if position is None else position, not_before=not_before,
         requirements=req or Requirements(), allow_mismatch=allow, max_attempts=3,
-        state=state, reason=reason, done=done, in_flight=in_flight,  # type: ignore[arg-type]
+        state=state, reason=reason, done=done, in_flight=in_flight, awaiting_clear=0,  # type: ignore[arg-type]
         failures=failures, created_at=NOW, created_by="op",
     )  # fmt: skip
 

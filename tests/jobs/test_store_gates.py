@@ -35,7 +35,8 @@ async def test_a_completed_print_leaves_the_printer_awaiting_a_clear(store: JobS
     attempt = await completed_on(store, job.id, "p1")
     gate = await store.gate("p1")
     assert (gate.state, gate.attempt_id) == ("awaiting_clear", attempt.id)
-    assert (await store.job(job.id)).in_flight == 1  # the copy waits for its verdict
+    job = await store.job(job.id)
+    assert (job.in_flight, job.awaiting_clear) == (1, 1)  # the copy waits for its verdict
     assert await store.reserve(job.id, "p1") is None
     await assert_consistent(store)
 
@@ -49,10 +50,11 @@ async def test_clear_good_counts_the_copy_and_the_last_one_finishes_the_job(
     gate = await store.clear("p1", "good", user="ana")
     assert (gate.state, gate.attempt_id, gate.user) == ("available", None, "ana")
     job = await store.job(job.id)
-    assert (job.done, job.in_flight, job.state) == (1, 1, "queued")
+    assert (job.done, job.in_flight, job.awaiting_clear, job.state) == (1, 1, 1, "queued")
     await store.clear("p2", "good", user="ana")
     job = await store.job(job.id)
-    assert (job.done, job.in_flight, job.left, job.state) == (2, 0, 0, "done")
+    assert (job.done, job.in_flight, job.awaiting_clear, job.left) == (2, 0, 0, 0)
+    assert job.state == "done"
     assert await store.reserve(job.id, "p1") is None
     assert await store.jobs() == []
     await assert_consistent(store)

@@ -283,6 +283,7 @@ async def _state(queue: QueueService) -> QueueState:
         blocked=sum(job.state == "blocked" for job in jobs),
         copies_left=sum(job.left for job in jobs if job.state == "queued"),
         copies_in_flight=sum(job.in_flight for job in jobs),
+        copies_printing=sum(job.in_flight - job.awaiting_clear for job in jobs),
         awaiting_clear=sorted(p for p, g in gates.items() if g.state == "awaiting_clear"),
         held=sorted(p for p, g in gates.items() if g.state in ("held", "maintenance")),
     )

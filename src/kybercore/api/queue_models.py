@@ -231,6 +231,9 @@ class JobOut(_Out):
     quantity: int = Field(description="Good copies wanted.")
     done: int = Field(description="Copies cleared good.")
     in_flight: int = Field(description="Copies printing, or printed and awaiting a clear.")
+    awaiting_clear: int = Field(
+        description="Of in_flight, the copies printed whose plate awaits a clear."
+    )
     left: int = Field(description="Copies no printer has yet.")
     failures: int = Field(description="Attempts that failed or did not start.")
     priority: int = Field(description="Higher runs first.")
@@ -306,5 +309,6 @@ class QueueState(BaseModel):
     blocked: int = Field(description="Jobs stopped after too many failed attempts.")
     copies_left: int = Field(description="Copies no printer has yet, over queued jobs.")
     copies_in_flight: int = Field(description="Copies printing or awaiting a clear.")
+    copies_printing: int = Field(description="Of copies_in_flight, those not printed yet.")
     awaiting_clear: list[str] = Field(description="Printers whose plate awaits a clear.")
     held: list[str] = Field(description="Printers held or in maintenance.")

@@ -115,14 +115,13 @@ def list_jobs(
         typer.echo("No jobs. Queue one with `kybercore jobs add FILE --copies N`.")
         return
     table = Table()
-    for column in ("id", "file", "done", "printing", "left", "of", "priority", "state", "needs"):
-        table.add_column(
-            column,
-            justify="right" if column in ("done", "printing", "left", "of", "priority") else "left",
-        )
+    counts = ("done", "printing", "to clear", "left", "of", "priority")
+    for column in ("id", "file", *counts, "state", "needs"):
+        table.add_column(column, justify="right" if column in counts else "left")
     for job in jobs:
         table.add_row(
-            str(job["id"]), Text(job["file"]["name"]), str(job["done"]), str(job["in_flight"]),
+            str(job["id"]), Text(job["file"]["name"]), str(job["done"]),
+            str(job["in_flight"] - job["awaiting_clear"]), str(job["awaiting_clear"]),
             str(job["left"]), str(job["quantity"]), str(job["priority"]),
             Text(job["state"] + (f": {job['reason']}" if job["reason"] else "")),
             Text(_needs(job)),
@@ -146,8 +145,8 @@ def show(
         return
     console.print(Text(f"Job {job['id']}: {job['file']['name']}", style="bold"))
     copies = (
-        f"{job['done']} done, {job['in_flight']} printing or awaiting a clear, "
-        f"{job['left']} left, of {job['quantity']}"
+        f"{job['done']} done, {job['in_flight'] - job['awaiting_clear']} printing, "
+        f"{job['awaiting_clear']} awaiting a clear, {job['left']} left, of {job['quantity']}"
     )
     for label, value in (
         ("state", job["state"] + (f" ({job['reason']})" if job["reason"] else "")),

@@ -95,6 +95,8 @@ class Job:
     """Copies cleared ``good``."""
     in_flight: int
     """Copies with a live attempt, or completed and awaiting a verdict."""
+    awaiting_clear: int
+    """Of ``in_flight``, the copies completed and awaiting their plate's verdict."""
     failures: int
     """Attempts that ended ``failed`` or ``failed_to_start``."""
     created_at: datetime

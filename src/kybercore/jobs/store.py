@@ -81,7 +81,7 @@ class JobStore:
         """Jobs in queue order: priority (highest first), position, id. Without
         ``include_finished``, only queued and blocked ones."""
         j = t.jobs.c
-        query = select(t.jobs).order_by(j.priority.desc(), j.position, j.id)
+        query = t.select_jobs().order_by(j.priority.desc(), j.position, j.id)
         if not include_finished:
             query = query.where(j.state.in_(("queued", "blocked")))
         return await self._read(lambda unit: _all(unit.conn, query, t.to_job))

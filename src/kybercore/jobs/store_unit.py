@@ -36,11 +36,11 @@ class Unit:
     async def job(self, job_id: int, *, lock: bool = False) -> Job:
         """The job, locked for this transaction when ``lock`` (PostgreSQL; on SQLite the
         write transaction holds the whole database)."""
-        query = select(t.jobs).where(t.jobs.c.id == job_id)
+        query = t.select_jobs().where(t.jobs.c.id == job_id)
         if lock:
             # FOR NO KEY UPDATE: other transactions may still insert attempts and events
             # that refer to the job (their foreign key check takes KEY SHARE).
-            query = query.with_for_update(key_share=True)
+            query = query.with_for_update(key_share=True, of=t.jobs)
         row = (await self.conn.execute(query)).mappings().first()
         if row is None:
             raise FileNotFound(

@@ -22,9 +22,12 @@ from sqlalchemy import (
     Integer,
     MetaData,
     RowMapping,
+    Select,
     String,
     Table,
     Text,
+    func,
+    select,
     text,
 )
 
@@ -192,8 +195,21 @@ def requirements_json(requirements: Requirements) -> dict[str, Any]:
     }
 
 
+def select_jobs() -> Select[Any]:
+    """``jobs`` rows with what :func:`to_job` also reads: how many of each job's copies
+    were printed and wait for their plate's verdict (an attempt ``completed``, no
+    verdict), counted from the attempts rather than kept beside ``in_flight``."""
+    a = attempts.c
+    printed = (
+        select(func.count())
+        .where(a.job_id == jobs.c.id, a.state == "completed", a.verdict.is_(None))
+        .scalar_subquery()
+    )
+    return select(jobs, printed.label("awaiting_clear"))
+
+
 def to_job(row: RowMapping) -> Job:
-    """A ``jobs`` row as a :class:`Job`."""
+    """A row of :func:`select_jobs` as a :class:`Job`."""
     wanted = row["requirements"]
     return Job(
         id=row["id"],
@@ -220,6 +236,7 @@ def to_job(row: RowMapping) -> Job:
         reason=row["reason"],
         done=row["done"],
         in_flight=row["in_flight"],
+        awaiting_clear=row["awaiting_clear"],
         failures=row["failures"],
         created_at=row["created_at"],
         created_by=row["created_by"],

@@ -54,7 +54,7 @@ function render() {
   els.pause.disabled = !operator || !state;
   els.add.disabled = !operator;
   setHidden(els.pausedNote, !state?.paused);
-  setText(els.summary, state ? t("queue.summary", { jobs: state.queued, left: state.copies_left, flight: state.copies_in_flight, clear: state.awaiting_clear.length }) : "");
+  setText(els.summary, state ? t("queue.summary", { jobs: state.queued, left: state.copies_left, printing: state.copies_printing, clear: state.awaiting_clear.length }) : "");
   setText(els.count, state && state.queued ? String(state.queued) : "");
   const seen = new Set();
   const movable = queue.jobs.filter((j) => ACTIVE.has(j.state)).map((j) => j.id);
@@ -86,6 +86,8 @@ function render() {
 /** What the pill says and which color it takes. */
 function stateOf(job) {
   if (job.state !== "queued") return { key: job.state, status: { blocked: "error", done: "ready", cancelled: "offline" }[job.state] };
+  // A copy printed but not cleared is the operator's turn, not the printer's.
+  if (job.in_flight > 0 && job.awaiting_clear === job.in_flight) return { key: "to_clear", status: "awaiting_clear" };
   if (job.in_flight > 0) return { key: "printing", status: "printing" };
   return { key: queue.state?.paused ? "paused" : "waiting", status: "paused" };
 }
@@ -111,7 +113,7 @@ class JobRow {
       name: h("p", { class: "job-name" }),
       needs: h("p", { class: "job-needs" }),
       note: h("p", { class: "job-note", hidden: true }),
-      bar: h("div", { class: "copies-bar", "aria-hidden": "true" }, h("span", { class: "seg done" }), h("span", { class: "seg flight" })),
+      bar: h("div", { class: "copies-bar", "aria-hidden": "true" }, h("span", { class: "seg done" }), h("span", { class: "seg flight" }), h("span", { class: "seg clear" })),
       copies: h("p", { class: "copies-text" }),
       priority: h("input", { type: "number", class: "priority", min: "-1000", max: "1000", step: "1", dataset: { jobAction: "priority" } }),
       pill: h("span", { class: "pill" }),
@@ -158,8 +160,11 @@ class JobRow {
     setHidden(r.note, !note);
     const share = (n) => `${(100 * n) / job.quantity}%`;
     /** @type {HTMLElement} */ (r.bar.children[0]).style.width = share(job.done);
-    /** @type {HTMLElement} */ (r.bar.children[1]).style.width = share(job.in_flight);
-    setText(r.copies, t("queue.copies", { done: job.done, flight: job.in_flight, left: job.left, n: job.quantity }));
+    const printing = job.in_flight - job.awaiting_clear;
+    /** @type {HTMLElement} */ (r.bar.children[1]).style.width = share(printing);
+    /** @type {HTMLElement} */ (r.bar.children[2]).style.width = share(job.awaiting_clear);
+    const copies = { done: job.done, printing, clear: job.awaiting_clear, left: job.left, n: job.quantity };
+    setText(r.copies, t(job.awaiting_clear ? "queue.copies_clear" : "queue.copies", copies));
     if (document.activeElement !== r.priority) r.priority.value = String(job.priority);
     r.priority.disabled = !operator || !active;
     setText(r.priority.previousElementSibling, t("jobform.priority"));

@@ -12,6 +12,7 @@ import { gates } from "./store.js";
  * @property {number} quantity good copies wanted
  * @property {number} done copies cleared good
  * @property {number} in_flight copies printing, or printed and awaiting a clear
+ * @property {number} awaiting_clear of in_flight, the copies printed whose plate awaits a clear
  * @property {number} left copies no printer has yet
  * @property {number} failures
  * @property {number} priority higher runs first
@@ -30,7 +31,8 @@ import { gates } from "./store.js";
 /**
  * The queue as a whole, GET /api/queue (QueueState).
  * @typedef {{paused: boolean, queued: number, blocked: number, copies_left: number,
- *   copies_in_flight: number, awaiting_clear: string[], held: string[]}} QueueState
+ *   copies_in_flight: number, copies_printing: number, awaiting_clear: string[],
+ *   held: string[]}} QueueState
  */
 
 /**
