@@ -103,7 +103,9 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
         "0 done · 0 printing · 1 to clear · 1 left of 2"
     )
     expect(row.locator(".pill")).to_have_text("Plate to clear")
-    expect(page.locator("#queue-summary")).to_contain_text("0 printing · 1 plates to clear")
+    expect(page.locator("#queue-summary")).to_have_text(
+        "1 job · 1 copy to start · 0 printing · 1 plate to clear"
+    )
     page.get_by_role("link", name="Printers", exact=True).click()
 
     # One click: the copy counts, and the next one starts on the cleared printer.

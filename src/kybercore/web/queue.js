@@ -54,7 +54,7 @@ function render() {
   els.pause.disabled = !operator || !state;
   els.add.disabled = !operator;
   setHidden(els.pausedNote, !state?.paused);
-  setText(els.summary, state ? t("queue.summary", { jobs: state.queued, left: state.copies_left, printing: state.copies_printing, clear: state.awaiting_clear.length }) : "");
+  setText(els.summary, state ? summaryOf(state) : "");
   setText(els.count, state && state.queued ? String(state.queued) : "");
   const seen = new Set();
   const movable = queue.jobs.filter((j) => ACTIVE.has(j.state)).map((j) => j.id);
@@ -81,6 +81,12 @@ function render() {
   const empty = queue.loaded && !queue.jobs.length;
   setHidden(els.empty, !empty && queue.loaded && !queue.error);
   setText(els.empty, queue.error ? messageOf(queue.error) : queue.loaded ? t("queue.empty") : t("queue.loading"));
+}
+
+/** "3 jobs · 1 copy to start · …", each count in its own singular or plural. */
+function summaryOf(state) {
+  const counts = { jobs: state.queued, left: state.copies_left, printing: state.copies_printing, clear: state.awaiting_clear.length };
+  return Object.entries(counts).map(([part, n]) => t(`queue.summary.${part}`, { n })).join(" · ");
 }
 
 /** What the pill says and which color it takes. */
