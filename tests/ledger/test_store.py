@@ -126,15 +126,18 @@ async def test_a_queued_print_links_to_its_attempt_job_and_verdict(
     assert attempt is not None
     store = HistoryStore(database)
     printed = job(5, "in_progress", filename=attempt.upload_name)
-    await store.upsert([("a", "i1", printed), ("a", "i1", job(6, user="bob"))])
+    anonymous = [job(n, user=name) for n, name in ((7, "_TRUSTED_USER_"), (8, "_API_KEY_USER_"))]
+    await store.upsert([("a", "i1", j) for j in (printed, job(6, user="bob"), *anonymous)])
     await queue.advance(attempt.id, "printing", moonraker_job_id="000005")
     await queue.finish(attempt.id, "completed", print_seconds=1500.0)
     await store.upsert([("a", "i1", job(5, filename=attempt.upload_name))])
     await queue.clear("a", "bad", cause="warped", user="carla")
 
     total, items = await records.page(database, records.HistoryFilter(printer="a"), 10, 0)
-    assert total == 2
-    linked, plain = items[1], items[0]
+    assert total == 4
+    # Moonraker's names for "no person" (a trusted address, its API key) name nobody.
+    assert [item["user"] for item in items[:2]] == [None, None]
+    linked, plain = items[3], items[2]
     assert (linked["attempt_id"], linked["job_id"], linked["sha256"]) == (
         attempt.id, queued.id, "ab" * 32,
     )  # fmt: skip

@@ -12,7 +12,18 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, Final
 
-from sqlalchemy import ColumnElement, Float, Select, and_, func, literal, or_, select
+from sqlalchemy import (
+    ColumnElement,
+    Float,
+    Select,
+    and_,
+    case,
+    func,
+    literal,
+    null,
+    or_,
+    select,
+)
 from sqlalchemy.ext.asyncio import AsyncEngine
 
 from kybercore.db import reading
@@ -43,9 +54,16 @@ class HistoryFilter:
     end: float | None = None
 
 
+NOBODY: Final = ("", "_TRUSTED_USER_", "_API_KEY_USER_")
+"""What Moonraker records as a job's user when it knows no person: a trusted address, its
+API key (its ``authorization`` component's names)."""
+
+
 def _user() -> ColumnElement[Any]:
     # Who queued it, for a queued job; who Moonraker says started it, otherwise.
-    return func.coalesce(jobs.c.created_by, func.nullif(history_jobs.c.moonraker_user, ""))
+    started_by = history_jobs.c.moonraker_user
+    person = case((started_by.in_(NOBODY), null()), else_=started_by)
+    return func.coalesce(jobs.c.created_by, person)
 
 
 def _query(where: HistoryFilter) -> Select[Any]:
