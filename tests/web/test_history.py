@@ -10,7 +10,7 @@ import uuid
 
 import httpx
 import pytest
-from playwright.sync_api import Locator, Page, Route, expect
+from playwright.sync_api import Locator, Page, Route, WebSocketRoute, expect
 
 from tests.helpers import KyberCoreServer, wait_until
 from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
@@ -139,6 +139,35 @@ def test_a_job_recorded_without_its_file_says_so(
     expect(file_cell).to_have_attribute(
         "title", "Moonraker registró este trabajo sin el nombre de su archivo"
     )
+
+
+def test_a_bookmarked_history_names_its_printers_once_the_fleet_arrives(
+    page: Page, kybercore_server: KyberCoreServer
+) -> None:
+    """Opened at ``#history``, the page may list the jobs before the fleet's first frame
+    says what the printers are called; the rows then show ids, and names once it does.
+    The socket is held (not faked) until the rows are drawn, to make that order sure."""
+    held: list[WebSocketRoute] = []
+    page.route_web_socket(re.compile(r"/ws(\?.*)?$"), lambda ws: held.append(ws))
+    row = {
+        "printer": "fleet-a", "moonraker_job_id": "00000A", "filename": "part.gcode",
+        "sha256": None, "job_id": None, "attempt_id": None, "status": "completed",
+        "queued_at": None, "started_at": "2026-11-28T10:00:00Z",
+        "ended_at": "2026-11-28T10:00:05Z", "cleared_at": None, "verdict": None,
+        "cause": None, "print_seconds": 5.0, "filament_mm": 0.0, "filament_g": None,
+        "user": None,
+    }  # fmt: skip
+    page.route(
+        re.compile(r"/api/history\?"),
+        lambda route: route.fulfill(json={"total": 1, "items": [row]}),
+    )
+    page.goto(f"{kybercore_server.url}/#history")
+    name = page.locator("#history-view tbody tr td.c-name")
+    expect(name).to_have_text("fleet-a")
+    wait_until(lambda: bool(held), what="the page opening its WebSocket")
+    held[0].connect_to_server()
+    expect(name).to_have_text("Printer A")
+    expect(page.locator("#history-printer option", has_text="Printer A")).to_have_count(1)
 
 
 @pytest.mark.usefixtures("two_jobs")

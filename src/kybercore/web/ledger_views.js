@@ -6,6 +6,7 @@ import { byId } from "./dom.js";
 import { onLangChange } from "./i18n.js";
 import { initHistory, relabelHistory, showHistory } from "./history.js";
 import { hideStats, initStats, relabelStats, showStats } from "./stats.js";
+import { subscribe } from "./store.js";
 
 export const LEDGER_PAGES = { "#history": "history", "#stats": "stats", "#audit": "audit" };
 
@@ -25,6 +26,13 @@ export function showLedgerPage(page) {
       relabelHistory();
       relabelStats();
       relabelAudit();
+    });
+    // Rows name printers by the fleet's names: a page opened from a bookmark may draw
+    // before the fleet's first snapshot arrives, so draw them again when one does.
+    subscribe((change) => {
+      if (!change.full) return;
+      relabelHistory();
+      relabelStats();
     });
     built = true;
   }
