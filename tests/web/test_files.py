@@ -11,7 +11,7 @@ import httpx
 import pytest
 from playwright.sync_api import FilePayload, Page, Request, Route, expect
 
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, wait_until
 from tests.web.conftest import ConsoleErrors
 from tests.web.support import (
     ARTIFACTS,
@@ -30,7 +30,8 @@ SHARED = "web_shared.gcode"
 DOOMED = "web_delete_me.gcode"
 PRINTING = "web_delete_printing.gcode"
 FOREIGN = "web_foreign_model.gcode"
-UPLOADS = (DROPPED, SHARED, DOOMED, PRINTING, FOREIGN)
+IN_FOLDER = "web_folder/web_in_folder.gcode"
+UPLOADS = (DROPPED, SHARED, DOOMED, PRINTING, FOREIGN, IN_FOLDER)
 
 
 def file_names(api: httpx.Client, printer_id: str) -> list[str]:
@@ -55,6 +56,24 @@ def remove_uploads(kybercore_server: KyberCoreServer, api: httpx.Client) -> Iter
         for name in present.intersection(UPLOADS):
             answer = api.delete(f"/api/printers/{printer_id}/files", params={"path": name})
             assert answer.status_code == 204, answer.text
+
+
+@pytest.mark.usefixtures("remove_uploads")
+def test_a_file_in_a_folder_shows_its_thumbnail(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    """Moonraker names a file's thumbnails relative to the file's own folder, as for the
+    queue's uploads in kybercore/: the list asks for them under that folder."""
+    upload(api, "fleet-c", IN_FOLDER, slow_print(60))
+    open_fleet(page, kybercore_server.url)
+    tile(page, "fleet-c").locator("[data-action=files]").click()
+    drawer = page.get_by_role("dialog", name="Printer C")
+    image = drawer.locator(f'tr[data-file="{IN_FOLDER}"] .file-thumb img')
+    expect(image).to_have_attribute("src", re.compile(r"path=web_folder%2F\.thumbs%2F"))
+    wait_until(
+        lambda: bool(image.evaluate("i => i.complete && i.naturalWidth > 0")),
+        what="the thumbnail drawn",
+    )
 
 
 @pytest.mark.usefixtures("remove_uploads")

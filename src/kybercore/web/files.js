@@ -235,7 +235,7 @@ function render(count) {
         ),
       ),
     );
-    const fill = (meta) => fillMeta(s.id, meta, estimate, thumb, slicer);
+    const fill = (meta) => fillMeta(s.id, file.path, meta, { estimate, thumb, slicer });
     fillers.set(row, fill);
     const known = s.meta.get(`${file.path}|${file.modified}`);
     if (known) fill(known);
@@ -246,7 +246,7 @@ function render(count) {
   setHidden(s.more, s.shown >= list.length);
 }
 
-function fillMeta(id, meta, estimate, thumb, slicer) {
+function fillMeta(id, path, meta, { estimate, thumb, slicer }) {
   estimate.textContent = typeof meta.estimated_time === "number" ? fmt.duration(meta.estimated_time) : "—";
   if (slicer.length) {
     const [material, nozzle, layer] = slicer;
@@ -256,7 +256,10 @@ function fillMeta(id, meta, estimate, thumb, slicer) {
   }
   const thumbs = (meta.thumbnails || []).filter((x) => x.relative_path).sort((a, b) => a.width - b.width);
   const pick = thumbs.find((x) => x.width >= 32) || thumbs[thumbs.length - 1];
-  if (pick && !thumb.firstChild) thumb.append(h("img", { src: api.thumbnailUrl(id, pick.relative_path), alt: "", loading: "lazy" }));
+  // Moonraker names a thumbnail relative to its file's folder (the queue's uploads are in
+  // kybercore/); the thumbnail route takes a path under gcodes/.
+  const folder = path.includes("/") ? path.slice(0, path.lastIndexOf("/") + 1) : "";
+  if (pick && !thumb.firstChild) thumb.append(h("img", { src: api.thumbnailUrl(id, folder + pick.relative_path), alt: "", loading: "lazy" }));
 }
 
 function onVisible(entries) {
