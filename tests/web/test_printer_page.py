@@ -1,6 +1,7 @@
 """The printer page (#printer/<id>) in Chromium over real virtual printers: reached from a
 tile and left with the back button; homing, jogging, a hotend target and a macro reach
-Klipper; after an e-stop one click brings Klippy back; Spanish, and a phone."""
+Klipper; the print card follows a print and pauses, resumes and cancels it; after an
+e-stop one click brings Klippy back; Spanish, and a phone."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from tests.helpers import KyberCoreServer, wait_until
-from tests.web.support import ARTIFACTS, open_fleet, tile
+from tests.web.support import ARTIFACTS, make_idle, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 
@@ -127,6 +128,41 @@ def test_home_jog_target_and_a_macro_reach_klipper(
     macros.get_by_role("button", name="PARK").click()
     wait_until(lambda: position(api, "fleet-a")[:2] == [215.0, 215.0], what="parked")
     expect(section.get_by_role("log")).to_contain_text("PARK")
+
+
+def test_the_print_card_follows_a_print_and_pauses_resumes_and_cancels_it(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    """Mainsail's status panel: the file, its progress and time, and the print's buttons
+    (the same validated actions as the tiles; cancel asks first)."""
+    make_idle(kybercore_server, api)
+    section = open_page(page, kybercore_server.url, "fleet-b", "Printer B")
+    card = section.locator("#pp-job")
+    pause, resume, cancel = (
+        card.get_by_role("button", name=f"{label} — Printer B")
+        for label in ("Pause", "Resume", "Cancel print")
+    )
+    expect(card.locator(".pp-job-file")).to_have_text("No job")
+    for button in (pause, resume, cancel):
+        expect(button).to_be_disabled()
+
+    start_print(api, "fleet-b", "web_page_print.gcode")
+    expect(card.locator(".pp-job-file")).to_have_text("web_page_print.gcode")
+    expect(card.locator(".pp-job-thumb")).to_be_visible()
+    expect(card.locator(".pct")).to_have_text(re.compile(r"^\d+(\.\d)?\s?%$"))
+    # (No print time: Klipper counts it from the first extrusion, and this file travels.)
+    pause.click()
+    wait_until(lambda: view(api, "fleet-b")["job"]["state"] == "paused", what="paused")  # type: ignore[index]
+    expect(resume).to_be_enabled()
+    expect(pause).to_be_disabled()
+    resume.click()
+    wait_until(lambda: view(api, "fleet-b")["job"]["state"] == "printing", what="printing")  # type: ignore[index]
+    cancel.click()
+    page.get_by_role("dialog", name="Cancel the print on Printer B?").get_by_role(
+        "button", name="Cancel print"
+    ).click()
+    wait_until(lambda: view(api, "fleet-b")["job"]["state"] == "cancelled", what="cancelled")  # type: ignore[index]
+    expect(cancel).to_be_disabled()
 
 
 def test_after_an_estop_one_click_restarts_the_firmware(

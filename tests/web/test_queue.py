@@ -106,7 +106,14 @@ def test_a_job_queued_in_the_dashboard_prints_copy_after_copy_as_plates_are_clea
     expect(page.locator("#queue-summary")).to_have_text(
         "1 job · 1 copy to start · 0 printing · 1 plate to clear"
     )
+    # So does the printer's own page, with the same Good and Bad.
     page.get_by_role("link", name="Printers", exact=True).click()
+    card.get_by_role("link", name="Printer A").click()
+    print_card = page.locator("#pp-job")
+    expect(print_card.locator(".gate-text")).to_contain_text("Plate to clear since")
+    on_page = print_card.get_by_role("button", name="Plate cleared, print good — Printer A")
+    expect(on_page).to_be_visible()
+    page.get_by_role("link", name="All printers").click()
 
     # One click: the copy counts, and the next one starts on the cleared printer.
     good.click()

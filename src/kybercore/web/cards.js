@@ -68,7 +68,7 @@ function updateActions(box, p, memo) {
 }
 
 /** Text of the note line: why a printer is not usable, or the job's message. */
-function noteOf(p) {
+export function noteOf(p) {
   if (p.connection !== "online" && p.connection !== "disabled") return p.connection_error || "";
   if (p.connection === "online" && p.klippy_state !== "ready") return p.klippy_message || "";
   return p.job?.message || "";
@@ -94,27 +94,27 @@ function etaText(job) {
 }
 
 /** "done at 15:42" for a busy job, or "". */
-function doneText(job) {
+export function doneText(job) {
   return busy(job) ? fmt.doneText(job, serverNow()) : "";
 }
 
 /** The time left (else `otherwise`), with a hint while it is unknown. */
-function setEta(el, job, otherwise = "") {
+export function setEta(el, job, otherwise = "") {
   const text = etaText(job);
   setText(el, text || otherwise);
   setAttr(el, "title", text === "—" ? t("job.eta_pending") : null);
 }
 
-function layerText(job) {
+export function layerText(job) {
   if (typeof job?.layer !== "number" || typeof job?.total_layers !== "number") return "";
   return t("job.layer", { layer: job.layer, total: job.total_layers });
 }
 
-function hasJob(p) {
+export function hasJob(p) {
   return Boolean(p.job?.filename) && p.klippy_state === "ready";
 }
 
-function setProgress(el, fraction) {
+export function setProgress(el, fraction) {
   const value = Math.round((fraction || 0) * 1000) / 10;
   setAttr(el, "aria-valuenow", Math.floor(value));
   const bar = el.firstElementChild;
@@ -122,7 +122,7 @@ function setProgress(el, fraction) {
   if (bar.style.width !== width) bar.style.width = width;
 }
 
-function progressBar() {
+export function progressBar() {
   return h("div", { class: "progress", role: "progressbar", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, h("span", { class: "bar" }));
 }
 

@@ -11,6 +11,8 @@ import { hideFiles, showFiles } from "./files.js";
 import * as fmt from "./format.js";
 import { onLangChange, t } from "./i18n.js";
 import { buildControls, card, updateControls } from "./printer_controls.js";
+import { jobCard } from "./printer_job.js";
+import { onQueueChange } from "./queue_data.js";
 import { can } from "./session.js";
 import { printers, statusOf, subscribe } from "./store.js";
 import { hideTemperatures, showTemperatures } from "./temps.js";
@@ -58,6 +60,10 @@ function init(el) {
   });
   onLangChange(() => {
     if (shownId) build(shownId);
+  });
+  // A plate cleared or held elsewhere (a tile, another browser) shows here too.
+  onQueueChange((change) => {
+    if (els && change.gates.has(els.id)) update();
   });
   return el;
 }
@@ -107,7 +113,8 @@ function build(id) {
   webcam.classList.add("pp-webcam");
   webcam.hidden = true; // shown by renderWebcam when the printer has a webcam
   const controls = buildControls(id);
-  els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam };
+  const job = jobCard(id, card);
+  els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam, job };
   for (const [view, , label] of HEATERS) heaters.append(heaterRow(id, view, label));
   root.replaceChildren(
     h("header", { class: "pp-head" }, back, h("div", { class: "pp-title-box" }, title, meta), pill, h("span", { class: "pp-head-actions" }, webUi, restart, estop)),
@@ -115,6 +122,7 @@ function build(id) {
     h(
       "div",
       { class: "pp-grid" },
+      job.el,
       card("pp-temps", t("pp.temps"), graph, h("table", { class: "pp-heaters" }, h("thead", {}, h("tr", {}, ...["pp.heater", "pp.current", "pp.target", "pp.power"].map((k) => h("th", { scope: "col", text: t(k) })), h("th", { scope: "col", text: t("pp.set") }))), heaters)),
       ...controls.cards,
       webcam,
@@ -182,6 +190,7 @@ function update() {
     for (const field of cells.form.elements) field.disabled = !operator || !actions.set_temperature;
   }
   updateControls(els.controls, p);
+  els.job.update(p);
 }
 
 /** Run an action; the e-stop and the firmware restart here are one click (nothing to lose:

@@ -645,6 +645,8 @@ export default {
   "pp.not_found": "There is no printer “{id}”. It may have been removed.",
   "pp.loading": "Loading the printer…",
   "pp.temps": "Temperatures",
+  "pp.job": "Print",
+  "pp.print_time": "printing for {time}",
   "pp.heater": "Heater",
   "pp.current": "Now",
   "pp.target": "Target",

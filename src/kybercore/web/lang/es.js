@@ -645,6 +645,8 @@ export default {
   "pp.not_found": "No hay ninguna impresora «{id}». Puede que se haya quitado.",
   "pp.loading": "Cargando la impresora…",
   "pp.temps": "Temperaturas",
+  "pp.job": "Impresión",
+  "pp.print_time": "imprimiendo desde hace {time}",
   "pp.heater": "Calentador",
   "pp.current": "Ahora",
   "pp.target": "Objetivo",
