@@ -4,6 +4,8 @@ the dashboard, find tiles."""
 from __future__ import annotations
 
 import functools
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
@@ -59,6 +61,18 @@ def make_idle(server: KyberCoreServer, api: httpx.Client) -> None:
                 f"/api/printers/{printer_id}/gcode", json={"script": "SDCARD_RESET_FILE"}
             )
             assert answer.status_code == 200, answer.text
+
+
+def wait_in_page(
+    page: Page, predicate: Callable[[], bool], what: str, timeout: float = 10.0
+) -> None:
+    """Wait until ``predicate()`` is true when it reads what Playwright's callbacks collect
+    (routed sockets, their messages). The sync API delivers those only while a call of
+    ``page`` runs, so this waits inside one; ``tests.helpers.wait_until`` would not."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out after {timeout:g} s waiting for {what}"
+        page.wait_for_timeout(50)  # poll: lets Playwright deliver the callbacks
 
 
 def thumbnail_block() -> str:

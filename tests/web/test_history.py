@@ -13,7 +13,7 @@ import pytest
 from playwright.sync_api import Locator, Page, Route, WebSocketRoute, expect
 
 from tests.helpers import KyberCoreServer, wait_until
-from tests.web.support import ARTIFACTS, open_fleet, start_print, tile
+from tests.web.support import ARTIFACTS, open_fleet, start_print, tile, wait_in_page
 
 pytestmark = [pytest.mark.integration, pytest.mark.browser]
 
@@ -164,7 +164,7 @@ def test_a_bookmarked_history_names_its_printers_once_the_fleet_arrives(
     page.goto(f"{kybercore_server.url}/#history")
     name = page.locator("#history-view tbody tr td.c-name")
     expect(name).to_have_text("fleet-a")
-    wait_until(lambda: bool(held), what="the page opening its WebSocket")
+    wait_in_page(page, lambda: bool(held), "the page to open its WebSocket")
     held[0].connect_to_server()
     expect(name).to_have_text("Printer A")
     expect(page.locator("#history-printer option", has_text="Printer A")).to_have_count(1)

@@ -13,6 +13,7 @@ import pytest
 from playwright.sync_api import Page, WebSocketRoute, expect
 
 from tests.helpers import KyberCoreServer
+from tests.web.support import wait_in_page
 
 pytestmark = pytest.mark.browser
 
@@ -84,15 +85,8 @@ def connect(page: Page, url: str) -> list[WebSocketRoute]:
     # A reconnect names the page's view: /ws?view=...
     page.route_web_socket(re.compile(r"/ws(\?.*)?$"), lambda ws: sockets.append(ws))
     page.goto(url)
-    wait_for_socket(page, sockets, 1)
+    wait_in_page(page, lambda: len(sockets) >= 1, "the page to open its WebSocket")
     return sockets
-
-
-def wait_for_socket(page: Page, sockets: list[WebSocketRoute], count: int) -> None:
-    deadline = time.monotonic() + 10
-    while len(sockets) < count:
-        assert time.monotonic() < deadline, "the page did not open its WebSocket"
-        page.wait_for_timeout(50)  # poll: lets Playwright deliver the route callback
 
 
 def test_500_printers_render_and_update_in_place(
@@ -224,7 +218,7 @@ def test_a_missing_frame_or_a_new_snapshot_resyncs(
     # seq 7 after 5: a frame went missing, so the page reconnects for a fresh snapshot.
     gap = {"p001": {"name": "should not be applied"}}
     sockets[0].send(json.dumps({"type": "delta", "seq": 7, "printers": gap, "removed": []}))
-    wait_for_socket(page, sockets, 2)
+    wait_in_page(page, lambda: len(sockets) >= 2, "the page to open a second WebSocket")
     expect(page.locator('.tile[data-id="p001"] .name')).to_have_text("Farm 001")
 
     # A snapshot replaces the state entirely: p002 is gone, p003 is new.

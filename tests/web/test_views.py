@@ -5,7 +5,6 @@ coming into view. The WebSocket is played by the test, as in test_scale.py."""
 from __future__ import annotations
 
 import json
-import time
 from typing import Any
 
 import pytest
@@ -13,6 +12,7 @@ from playwright.sync_api import Page, WebSocketRoute, expect
 
 from tests.helpers import KyberCoreServer
 from tests.web.conftest import ConsoleErrors
+from tests.web.support import wait_in_page
 from tests.web.test_scale import COUNT, connect, view
 
 pytestmark = pytest.mark.browser
@@ -33,13 +33,14 @@ def views_asked(sockets: list[WebSocketRoute]) -> list[list[str] | None]:
 
 def next_view(page: Page, asked: list[list[str] | None], check: Any, what: str) -> list[str]:
     """Wait for a view message that passes ``check``."""
-    deadline = time.monotonic() + 10
-    while True:
-        for ids in asked:
-            if ids is not None and check(set(ids)):
-                return ids
-        assert time.monotonic() < deadline, f"the page never asked for {what}: {asked}"
-        page.wait_for_timeout(50)  # poll: lets Playwright deliver the socket messages
+
+    def passing() -> list[str] | None:
+        return next((ids for ids in asked if ids is not None and check(set(ids))), None)
+
+    wait_in_page(page, lambda: passing() is not None, f"the page to ask for {what}")
+    found = passing()
+    assert found is not None
+    return found
 
 
 def test_the_page_asks_for_what_it_shows_and_reads_binary_frames(
