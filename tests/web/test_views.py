@@ -5,6 +5,8 @@ coming into view. The WebSocket is played by the test, as in test_scale.py."""
 from __future__ import annotations
 
 import json
+import re
+import time
 from typing import Any
 
 import pytest
@@ -98,3 +100,35 @@ def test_a_page_opened_on_one_printer_names_it_when_it_connects(
     sockets[0].send(json.dumps({"type": "snapshot", "seq": 1, "printers": views}).encode())
     section = page.locator("#printer-view")
     expect(section.get_by_role("heading", level=1, name="Farm 250")).to_be_visible()
+
+
+def test_the_printer_page_shows_how_old_a_quiet_printers_data_is(
+    page: Page, kybercore_server: KyberCoreServer, console_errors: ConsoleErrors
+) -> None:
+    """Frames faked as the backend sends them: a printing printer whose Moonraker falls
+    silent, which a real one does not do on demand. The age shows on the print card, and
+    grows there with no frame arriving, as it does on the tiles."""
+    console_errors.expect(r"404 \(Not Found\) \[.*/api/printers/p250/")
+    sockets = connect(page, kybercore_server.url + "/#printer/p250")
+    printing = view(250)
+    assert printing["job"]["state"] == "printing"
+
+    def heard(seq: int, seconds_ago: float) -> None:
+        frame = [{**printing, "updated_at": time.time() - seconds_ago}]
+        sockets[0].send(json.dumps({"type": "snapshot", "seq": seq, "printers": frame}))
+
+    heard(1, 0)
+    card = page.locator("#pp-job")
+    expect(card.locator(".pp-job-file")).to_have_text("part_12.gcode")
+    stale = card.locator(".stale")
+    expect(stale).to_be_hidden()
+    heard(2, 125)
+    expect(stale).to_have_text("Data 2 min old")
+    expect(card).to_have_class(re.compile(r"\bis-stale\b"))
+    # Heard 8 s ago and nothing since: within a few seconds it is 10 s old, and says so.
+    heard(3, 8)
+    expect(stale).to_be_hidden()
+    expect(stale).to_have_text(re.compile(r"^Data 1\d s old$"), timeout=15_000)
+    heard(4, 0)
+    expect(stale).to_be_hidden()
+    expect(card).not_to_have_class(re.compile(r"\bis-stale\b"))

@@ -32,6 +32,16 @@ export async function onCardAction(id, action, opener) {
   return runAction(id, action);
 }
 
+/** A card's button pressed: its action, with the button marked busy until it is answered. */
+export async function onCardButton(id, action, button) {
+  button.classList.add("busy");
+  try {
+    await onCardAction(id, action, button);
+  } finally {
+    button.classList.remove("busy");
+  }
+}
+
 function moreMenu(id, anchor) {
   const p = printers.get(id);
   const allowed = (action) => can("operator") && Boolean(p?.actions?.[action]);

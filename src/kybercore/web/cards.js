@@ -94,18 +94,18 @@ function etaText(job) {
 }
 
 /** "done at 15:42" for a busy job, or "". */
-export function doneText(job) {
+function doneText(job) {
   return busy(job) ? fmt.doneText(job, serverNow()) : "";
 }
 
 /** The time left (else `otherwise`), with a hint while it is unknown. */
-export function setEta(el, job, otherwise = "") {
+function setEta(el, job, otherwise = "") {
   const text = etaText(job);
   setText(el, text || otherwise);
   setAttr(el, "title", text === "—" ? t("job.eta_pending") : null);
 }
 
-export function layerText(job) {
+function layerText(job) {
   if (typeof job?.layer !== "number" || typeof job?.total_layers !== "number") return "";
   return t("job.layer", { layer: job.layer, total: job.total_layers });
 }
@@ -122,11 +122,33 @@ export function setProgress(el, fraction) {
   if (bar.style.width !== width) bar.style.width = width;
 }
 
+/** The line under a job's progress bar: percent, time left, finish clock and layer, then
+ * whatever `extra` elements a card adds; written whole, or emptied when there is no job. */
+export class JobMeta {
+  constructor(...extra) {
+    this.pct = h("span", { class: "pct" });
+    this.eta = h("span", { class: "eta" });
+    this.done = h("span", { class: "done" });
+    this.layer = h("span", { class: "layer" });
+    this.el = h("p", { class: "job-meta" }, this.pct, this.eta, this.done, this.layer, ...extra);
+  }
+
+  /** @param {Record<string, any> | null} job the printer's job, or null when it has none */
+  update(job) {
+    setText(this.pct, job ? fmt.percent(job.progress) : "");
+    setEta(this.eta, job || {});
+    setText(this.done, job ? doneText(job) : "");
+    setText(this.layer, job ? layerText(job) : "");
+  }
+}
+
 export function progressBar() {
   return h("div", { class: "progress", role: "progressbar", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, h("span", { class: "bar" }));
 }
 
-class Card {
+/** What the fleet's tiles and rows and the printer page's cards share: a memo of what they
+ * last wrote, so an update of one printer writes only what changed. */
+export class Card {
   /** @param {string} id */
   constructor(id) {
     this.id = id;
@@ -178,10 +200,7 @@ export class Tile extends Card {
       thumbImg: h("img", { alt: "", decoding: "async", loading: "lazy" }),
       file: h("p", { class: "file" }),
       progress: progressBar(),
-      pct: h("span", { class: "pct" }),
-      eta: h("span", { class: "eta" }),
-      done: h("span", { class: "done" }),
-      layer: h("span", { class: "layer" }),
+      jobMeta: new JobMeta(),
       note: h("p", { class: "note", hidden: true }),
       hotend: h("span", { class: "value" }),
       hotendTarget: h("span", { class: "target" }),
@@ -203,7 +222,7 @@ export class Tile extends Card {
       { class: "tile", dataset: { id: p.id }, "aria-labelledby": nameId },
       h("header", { class: "tile-head" }, r.select, h("div", { class: "tile-title" }, r.name, r.meta), r.pill),
       h("div", { class: "badges" }, r.conn, r.klippy, r.limits, r.spool, r.tags),
-      h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, h("p", { class: "job-meta" }, r.pct, r.eta, r.done, r.layer))),
+      h("div", { class: "job" }, r.thumb, h("div", { class: "job-body" }, r.file, r.progress, r.jobMeta.el)),
       r.note,
       r.gate.el,
       h(
@@ -288,10 +307,7 @@ export class Tile extends Card {
         r.file.removeAttribute("title");
       }
       setProgress(r.progress, 0);
-      setText(r.pct, "");
-      setEta(r.eta, {});
-      setText(r.done, "");
-      setText(r.layer, "");
+      r.jobMeta.update(null);
       this.setThumb(p, null);
       return;
     }
@@ -301,10 +317,7 @@ export class Tile extends Card {
     }
     setProgress(r.progress, job.progress);
     setAttr(r.progress, "aria-label", t("job.progress"));
-    setText(r.pct, fmt.percent(job.progress));
-    setEta(r.eta, job);
-    setText(r.done, doneText(job));
-    setText(r.layer, layerText(job));
+    r.jobMeta.update(job);
     this.setThumb(p, job.thumbnail);
   }
 

@@ -1,6 +1,6 @@
 // KyberCore's dashboard: wires the live connection, the overview, actions, bulk actions,
 // the printer drawer (files, console), printer forms, language and theme together.
-import { initActions, onCardAction } from "./actions.js";
+import { initActions, onCardButton } from "./actions.js";
 import { alertOperator, initAlerts } from "./alerts.js";
 import { CAMERAS_HASH, showCamerasPage } from "./cameras.js";
 import { initBulk, updateBulkBar } from "./bulk.js";
@@ -233,14 +233,7 @@ async function main() {
       modeButtons: [...document.querySelectorAll("[data-mode]")],
     },
     {
-      onAction: async (id, action, button) => {
-        button.classList.add("busy");
-        try {
-          await onCardAction(id, action, button);
-        } finally {
-          button.classList.remove("busy");
-        }
-      },
+      onAction: onCardButton,
       onSelection: updateBulkBar,
       onDropFiles: (id, files) => uploadDialog([id], files),
     },

@@ -11,10 +11,10 @@ import { hideFiles, showFiles } from "./files.js";
 import * as fmt from "./format.js";
 import { onLangChange, t } from "./i18n.js";
 import { buildControls, card, updateControls } from "./printer_controls.js";
-import { jobCard } from "./printer_job.js";
+import { JobCard } from "./printer_job.js";
 import { onQueueChange } from "./queue_data.js";
 import { can } from "./session.js";
-import { printers, statusOf, subscribe } from "./store.js";
+import { printers, serverNow, statusOf, subscribe } from "./store.js";
 import { hideTemperatures, showTemperatures } from "./temps.js";
 import { show } from "./watch.js";
 import { renderWebcam, stopWebcam } from "./webcam_view.js";
@@ -65,6 +65,11 @@ function init(el) {
   onQueueChange((change) => {
     if (els && change.gates.has(els.id)) update();
   });
+  // A printer gone quiet sends nothing: the age of its data grows without a frame.
+  setInterval(() => {
+    const p = els && printers.get(els.id);
+    if (p) els.job.updateStale(p, serverNow());
+  }, 1000);
   return el;
 }
 
@@ -113,7 +118,7 @@ function build(id) {
   webcam.classList.add("pp-webcam");
   webcam.hidden = true; // shown by renderWebcam when the printer has a webcam
   const controls = buildControls(id);
-  const job = jobCard(id, card);
+  const job = new JobCard(id, card);
   els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam, job };
   for (const [view, , label] of HEATERS) heaters.append(heaterRow(id, view, label));
   root.replaceChildren(
