@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 import socket
@@ -14,13 +15,14 @@ from pathlib import Path
 
 import httpx
 import pytest
+from websockets.sync.client import connect
 
 from kybercore.errors import LaunchError
 from kybercore.moonraker.client import MoonrakerClient
 from kybercore.sim import stack as stack_module
 from kybercore.sim.demo import DEMO_JOBS, demo_fleet, sample_files
 from kybercore.sim.stack import PrinterStack, StackOptions, free_port
-from tests.helpers import wait_until
+from tests.helpers import travel_gcode, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -145,6 +147,38 @@ def test_a_second_demo_beside_a_running_one_is_refused(runtimes: None, tmp_path:
             pass
         assert stacks[0].pids == before
     assert stacks[0].pids == {}
+
+
+def test_a_demo_that_forgets_history_starts_its_printers_with_none(
+    runtimes: None, tmp_path: Path
+) -> None:
+    """`kybercore demo` forgets its queue at each start, so its printers' own job history
+    goes too; their files stay."""
+
+    def history_count(url: str) -> int:
+        answer = httpx.get(f"{url}/server/history/list", params={"limit": 1}, timeout=10)
+        return int(answer.json()["result"]["count"])
+
+    with demo_fleet(tmp_path, 1, progress=lambda _line: None) as stacks:
+        url = stacks[0].url
+        # Seen with this Moonraker: its history records a print only while a client
+        # subscribes to print_stats (KyberCore does; this test has none otherwise).
+        with connect(url.replace("http", "ws", 1) + "/websocket") as watcher:
+            subscribe = {"objects": {"print_stats": None}}
+            watcher.send(json.dumps({"jsonrpc": "2.0", "method": "printer.objects.subscribe",
+                                     "params": subscribe, "id": 1}))  # fmt: skip
+            answer = httpx.post(
+                f"{url}/server/files/upload",
+                files={"file": ("travel.gcode", travel_gcode(2))},
+                data={"print": "true"},
+            )
+            assert answer.status_code == 201, answer.text
+            wait_until(lambda: history_count(url) == 1, timeout=30, what="the print in history")
+    with demo_fleet(tmp_path, 1, progress=lambda _line: None) as stacks:
+        assert history_count(stacks[0].url) == 1  # by default, printers keep their history
+    with demo_fleet(tmp_path, 1, forget_history=True, progress=lambda _line: None) as stacks:
+        assert history_count(stacks[0].url) == 0
+        assert (stacks[0].gcodes_dir / "travel.gcode").exists()
 
 
 def _rss_kb(pid: int) -> int:

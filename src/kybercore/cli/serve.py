@@ -138,7 +138,9 @@ def demo(
         _install_runtimes()
         with (
             console.status("Starting virtual printers…") as status,
-            demo_fleet(folder, printers, progress=lambda line: status.update(line)) as stacks,
+            demo_fleet(
+                folder, printers, forget_history=True, progress=lambda line: status.update(line)
+            ) as stacks,
         ):
             path = folder / "printers.json"
             write_demo_printers(path, stacks)
@@ -252,7 +254,8 @@ def _check_database(url: str) -> None:
 
 def _forget_demo_queue(printers_file: Path) -> None:
     """Each demo starts from its few queued jobs: the last run's queue is forgotten (the
-    demo's SQLite file beside printers.json and the job files)."""
+    demo's SQLite file beside printers.json and the job files; the printers' own job
+    history goes with ``demo_fleet(forget_history=True)``)."""
     from sqlalchemy.engine import make_url
 
     database = make_url(_default_database(printers_file)).database

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
@@ -130,9 +131,14 @@ def demo_fleet(
     *,
     base_port: int = 0,
     heat_rate: float | None = None,
+    forget_history: bool = False,
     progress: Callable[[str], None] = print,
 ) -> Iterator[list[PrinterStack]]:
-    """Start ``count`` virtual printers under ``folder``; stop them all on exit."""
+    """Start ``count`` virtual printers under ``folder``; stop them all on exit.
+
+    ``forget_history``: each printer's Moonraker database (its job history) is removed
+    before it starts, for a demo whose queue starts afresh too: otherwise the last run's
+    prints come back in History without the queued jobs they belonged to."""
     if count < 1:
         raise InvalidInput("A fleet needs at least one printer: use --printers 1 or more.")
     folder.mkdir(parents=True, exist_ok=True)
@@ -151,6 +157,9 @@ def demo_fleet(
         for opts in options:
             if opts.port:
                 ensure_port_free(opts.port)
+        if forget_history:
+            for opts in options:
+                shutil.rmtree(folder / opts.name / "database", ignore_errors=True)
         stacks = [PrinterStack(replace(opts), folder / opts.name) for opts in options]
         try:
             for stack in stacks:
