@@ -161,8 +161,8 @@ def test_a_demo_that_forgets_history_starts_its_printers_with_none(
 
     with demo_fleet(tmp_path, 1, progress=lambda _line: None) as stacks:
         url = stacks[0].url
-        # Seen with this Moonraker: its history records a print only while a client
-        # subscribes to print_stats (KyberCore does; this test has none otherwise).
+        # Seen with this Moonraker: a print started while no client subscribes to
+        # print_stats never reaches its history (KyberCore subscribes; this test would not).
         with connect(url.replace("http", "ws", 1) + "/websocket") as watcher:
             subscribe = {"objects": {"print_stats": None}}
             watcher.send(json.dumps({"jsonrpc": "2.0", "method": "printer.objects.subscribe",
