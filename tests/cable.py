@@ -79,7 +79,6 @@ async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> N
     writer.transport.abort()
 
 
-
 def to_database(database_url: str) -> tuple[Cable, str]:
     """A started cable to the database at ``database_url``, and the URL by way of it."""
     url = make_url(database_url)

@@ -100,4 +100,3 @@ def test_the_pure_modules_pass_the_same_tests() -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:]
     assert " passed" in done.stdout
-

@@ -26,7 +26,9 @@ READY_WITHIN = 60.0
 BACK_WITHIN = 30.0
 """A new connection once the line is mended; a busy machine is slower."""
 TASKS = (
-    "plan the queue", "check the queue for notifications", "read the queue's gates and depth",
+    "plan the queue",
+    "check the queue for notifications",
+    "read the queue's gates and depth",
 )
 """The background tasks that read the database on their own."""
 NEEDS_THE_DATABASE = ("/api/history", "/api/stats", "/api/jobs", "/api/queue", "/api/gates")

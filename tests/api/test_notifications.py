@@ -56,7 +56,6 @@ async def api(tmp_path: Path) -> AsyncIterator[Api]:
         yield Api(app, client, tokens)
 
 
-
 def webhook(receiver: Receiver, **fields: Any) -> dict[str, Any]:
     return {"name": "ops hook", "kind": "webhook", "target": receiver.url(), **fields}
 

@@ -46,7 +46,6 @@ def server(tmp_path: Path) -> Iterator[KyberCoreServer]:
     started.stop()
 
 
-
 async def test_add_list_test_and_read_the_deliveries_of_a_webhook(
     server: KyberCoreServer, receiver: Receiver
 ) -> None:

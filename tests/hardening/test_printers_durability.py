@@ -35,10 +35,13 @@ ROUNDS = 250  # the issue asks for at least 200
 MAX_KILL_DELAY = 0.030
 BEGIN_WITHIN = 30.0
 """Deadline for a writer to begin its first writes (idle: a few ms)."""
+
+
 def _url(n: int) -> str:
     """Printer ``n``'s Moonraker, one per printer: the discard port of a loopback address of
     its own (nothing listens, nothing leaves loopback)."""
     return f"http://127.0.{n // 200}.{n % 200 + 1}:9"
+
 
 State = dict[str, str]
 """printer id -> notes (every write stamps the printer's notes with a unique value)."""

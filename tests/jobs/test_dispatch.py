@@ -53,9 +53,7 @@ async def test_five_pla_copies_run_only_on_pla_printers_each_after_a_clear(
             user="alice",
         )
         # Why it does not run on the PETG printer, asked while it runs elsewhere.
-        await wait_for(
-            lambda: _any_printing(live), PRINT_TIMEOUT, "a first copy printing"
-        )
+        await wait_for(lambda: _any_printing(live), PRINT_TIMEOUT, "a first copy printing")
         petg_lines = [line for line in await live.queue.why(job.id) if line.subject == "petg"]
         assert petg_lines, await live.queue.why(job.id)
         assert any("PETG" in line.en and "PLA" in line.en for line in petg_lines), petg_lines

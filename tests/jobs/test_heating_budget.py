@@ -53,9 +53,7 @@ async def test_at_most_three_of_twelve_printers_heat_at_once(
 
         def sample(_printer_id: str, event: SessionEvent) -> None:
             if isinstance(event, StatusDelta | StatusSnapshot):
-                samples.append(
-                    sum(is_heating(p.live.status) for p in live.fleet.sessions.all())
-                )
+                samples.append(sum(is_heating(p.live.status) for p in live.fleet.sessions.all()))
 
         stop_sampling = live.fleet.listen(sample)
         try:
@@ -72,9 +70,7 @@ async def test_at_most_three_of_twelve_printers_heat_at_once(
 
             async def every_copy_printed() -> bool:
                 attempts = await live.attempts(job.id)
-                return len(attempts) == PRINTERS and all(
-                    a.state == "completed" for a in attempts
-                )
+                return len(attempts) == PRINTERS and all(a.state == "completed" for a in attempts)
 
             await wait_for(every_copy_printed, ALL_DONE_TIMEOUT, "all twelve copies printed")
         finally:

@@ -102,9 +102,7 @@ async def test_a_print_that_ends_while_kybercore_is_away_is_settled_from_history
         ended = await _wait_attempt(live, job.id, "completed", RECONNECT_TIMEOUT)
         history = (await http.get(f"{url}/server/history/list")).json()["result"]
         ours = [j for j in history["jobs"] if j["filename"] == attempt.upload_name]
-        assert [(j["status"], j["job_id"]) for j in ours] == [
-            ("completed", ended.moonraker_job_id)
-        ]
+        assert [(j["status"], j["job_id"]) for j in ours] == [("completed", ended.moonraker_job_id)]
         assert ended.print_seconds == pytest.approx(ours[0]["print_duration"])
         assert (await live.gate("p")).state == "awaiting_clear"
 

@@ -98,9 +98,7 @@ async def test_a_start_accepted_but_never_seen_is_retried_on_another_printer(
         stored = await live.job(job.id)
         assert (stored.state, stored.failures) == ("queued", 1)
         # The refusing printer's Klippy never printed anything of ours.
-        assert not str(live.print_stats("a-refuses").get("filename", "")).startswith(
-            "kybercore/"
-        )
+        assert not str(live.print_stats("a-refuses").get("filename", "")).startswith("kybercore/")
 
 
 async def test_after_max_attempts_of_refused_starts_the_job_is_blocked_with_the_reason(

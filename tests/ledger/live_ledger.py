@@ -79,7 +79,7 @@ def finished(http: httpx.AsyncClient, stack: PrinterStack, job_id: str) -> Calla
 
     async def check() -> bool:
         job = (await moonraker(http, stack, "/server/history/job", uid=job_id))["job"]
-        state = (await moonraker(http, stack, "/printer/objects/query", print_stats="state"))
+        state = await moonraker(http, stack, "/printer/objects/query", print_stats="state")
         idle = state["status"]["print_stats"]["state"] not in ("printing", "paused")
         return bool(job["status"] != "in_progress" and idle)
 

@@ -216,8 +216,10 @@ async def test_five_thousand_past_jobs_are_read_once_in_ceil_count_over_limit_re
         await asyncio.to_thread(own_printer.stop_moonraker)
         await asyncio.to_thread(own_printer.start_moonraker)
         await wait_for(
-            lambda: ledger.backfill_requests == math.ceil(past / limit) + 1
-            and ledger.caught_up(own_printer.options.name),
+            lambda: (
+                ledger.backfill_requests == math.ceil(past / limit) + 1
+                and ledger.caught_up(own_printer.options.name)
+            ),
             60,
             "the catch-up after Moonraker's restart",
         )

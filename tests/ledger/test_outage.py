@@ -48,8 +48,9 @@ async def line(postgres_database: str) -> AsyncIterator[tuple[Cable, AsyncEngine
 
 
 def finished(job_id: str) -> Notification:
-    return Notification("notify_history_changed", [{**FINISHED, "job": {**FINISHED["job"],
-                                                                        "job_id": job_id}}])
+    return Notification(
+        "notify_history_changed", [{**FINISHED, "job": {**FINISHED["job"], "job_id": job_id}}]
+    )
 
 
 def no_printers(folder: Path, http: httpx.AsyncClient) -> FleetService:

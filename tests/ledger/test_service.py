@@ -64,4 +64,3 @@ async def test_flush_returns_once_the_batch_the_writer_took_is_written(
         assert (total, rows[0]["moonraker_job_id"]) == (1, "00002A")
     finally:
         await ledger.stop()
-

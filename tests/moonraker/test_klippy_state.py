@@ -157,8 +157,9 @@ async def test_e_stop_raced_against_the_resubscription_never_leaves_it_shown_rea
             latency.append((n % 20 - 10) / 1000)
             await driver.firmware_restart()
             await wait_for(
-                lambda: (bool(stops) and stops[-1].done())
-                or (bool(latency) and watch.state == "ready"),
+                lambda: (
+                    (bool(stops) and stops[-1].done()) or (bool(latency) and watch.state == "ready")
+                ),
                 timeout=READY_WITHIN,
                 what=f"race {n}: the e-stop sent",
             )

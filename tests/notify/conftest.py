@@ -45,7 +45,6 @@ def store(database: AsyncEngine) -> NotifyStore:
     return NotifyStore(database)
 
 
-
 async def add_webhook(
     store: NotifyStore,
     url: str,

@@ -64,9 +64,7 @@ async def test_losing_the_node_a_process_is_on_loses_no_printer_and_no_lease(
     url = ",".join(node.url for node in nodes)
     nc = await connect(url, "front")
     worker_nc = await connect(url, "worker")
-    worker = Leases(
-        worker_nc, "w1", url=url, slots=SLOTS, ttl=TTL, log_path=tmp_path / "w1.log"
-    )
+    worker = Leases(worker_nc, "w1", url=url, slots=SLOTS, ttl=TTL, log_path=tmp_path / "w1.log")
     try:
         await wait_for(lambda: ready(nc), READY_WITHIN, "JetStream on the cluster")
         registry = KvRegistry()

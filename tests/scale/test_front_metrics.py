@@ -130,6 +130,7 @@ async def test_a_printer_no_worker_reports_is_stale_in_a_fronts_metrics(
     cluster = shared_cluster
     names = {s.options.name for s in fleet_stacks}
     async with httpx.AsyncClient(base_url=cluster.front.url, timeout=60) as api:
+
         async def all_ready() -> bool:
             # The suite's printers are shared: another test may have left one restarting.
             return by_state(await scrape(api)) == {"online/ready": len(fleet_stacks)}

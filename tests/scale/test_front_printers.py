@@ -195,8 +195,10 @@ async def test_a_print_klipper_shut_down_is_recorded_with_klippys_message(
         await front.act(printer, "emergency_stop")
         # Klippy's state and its message may reach the front in two patches.
         await wait_for(
-            lambda: printers.shown(printer).klippy_state == "shutdown"
-            and bool(printers.shown(printer).klippy_message),
+            lambda: (
+                printers.shown(printer).klippy_state == "shutdown"
+                and bool(printers.shown(printer).klippy_message)
+            ),
             30,
             "Klippy shut down, with its message",
         )

@@ -139,8 +139,8 @@ def test_fronts_share_the_queue_and_another_dispatches_when_the_first_dies(
     def copy_ended(frames: list[dict[str, Any]]) -> bool:
         return any(
             f["kind"] == "attempt"
-    and f["event"] == "attempt_completed"
-    and f["attempt"]["job_id"] == added["id"]
+            and f["event"] == "attempt_completed"
+            and f["attempt"]["job_id"] == added["id"]
             for f in frames
         )
 

@@ -142,9 +142,7 @@ def test_an_image_too_large_for_nats_is_refused_by_name(
         huge.unlink()
 
 
-def test_the_webcams_and_a_snapshot(
-    front: httpx.Client, fleet_stacks: list[PrinterStack]
-) -> None:
+def test_the_webcams_and_a_snapshot(front: httpx.Client, fleet_stacks: list[PrinterStack]) -> None:
     answer = front.get("/fleet-a/webcams")
     assert answer.status_code == 200, answer.text
     listed = moonraker(stack(fleet_stacks, "fleet-a"), "/server/webcams/list")["webcams"]

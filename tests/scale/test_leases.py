@@ -411,9 +411,7 @@ def busy(seconds: float) -> None:
         pass
 
 
-async def test_a_loop_blocked_past_the_ttl_keeps_its_leases(
-    workers: Start, tmp_path: Path
-) -> None:
+async def test_a_loop_blocked_past_the_ttl_keeps_its_leases(workers: Start, tmp_path: Path) -> None:
     # Renewed on the loop, every lease expired meanwhile: both workers fenced and claimed
     # everything again when it came back. Renewed on their own threads, none is lost.
     w1, w2 = await workers("w1"), await workers("w2")

@@ -158,9 +158,7 @@ async def fleet(tmp_path: Path) -> AsyncIterator[FrontFleet]:
         yield front
 
 
-def snapshot(
-    fleet: FrontFleet, printer_id: str, live: LivePrinter, now: float = 0.0
-) -> SlotRef:
+def snapshot(fleet: FrontFleet, printer_id: str, live: LivePrinter, now: float = 0.0) -> SlotRef:
     """The view of ``live`` from the printer's owner, as a snapshot of its slot."""
     slot = SlotRef("", slot_of(printer_id, SLOTS))
     view = fuse(config(printer_id), live)

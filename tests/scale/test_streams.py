@@ -81,7 +81,9 @@ async def start_owner(nats_server: LocalServer, **relay: Any) -> AsyncIterator[O
     owner_nc = await connect(nats_server.url, "owner")
     owner = Owner(FakeService(), StreamRelay(owner_nc, lambda pid: owner.epoch, **relay))
     runner = CommandRunner(
-        owner.service, lambda pid: owner.epoch, streams=owner.relay  # type: ignore[arg-type]
+        owner.service,
+        lambda pid: owner.epoch,
+        streams=owner.relay,  # type: ignore[arg-type]
     )
     await owner_nc.subscribe(command_subject(PRINTER), cb=runner.on_message)
     await subscribed(owner_nc)  # before the front, on its own connection, asks

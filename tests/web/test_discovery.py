@@ -1,4 +1,4 @@
-""""Find printers" in Chromium: Moonraker servers announced over mDNS on loopback (a real
+""" "Find printers" in Chromium: Moonraker servers announced over mDNS on loopback (a real
 python-zeroconf announcer sending what Moonraker's [zeroconf] sends, for real virtual
 printers: KyberCore's server browses the host's loopback, where Moonraker's own would
 multicast on the LAN too; tests/fleet/test_discovery.py browses Moonraker's own in a network

@@ -47,8 +47,10 @@ def two_jobs(api: httpx.Client) -> Jobs:
     assert api.post("/api/printers/fleet-b/actions/cancel", json={}).status_code == 200
     wait_until(lambda: job_state(api, "fleet-a") == "complete", timeout=60, what="fleet-a done")
     wait_until(
-        lambda: history_total(api, file=jobs.tag) == 2
-        and history_total(api, file=jobs.tag, status="completed") == 1,
+        lambda: (
+            history_total(api, file=jobs.tag) == 2
+            and history_total(api, file=jobs.tag, status="completed") == 1
+        ),
         timeout=30,
         what="both jobs in the ledger",
     )

@@ -51,9 +51,7 @@ async def delete_file(service: Service, printer_id: str, path: FilePath) -> Resp
 
 
 @router.get("/metadata", responses=ERROR_RESPONSES, dependencies=[VIEWER])
-async def file_metadata(
-    service: Service, printer_id: str, filename: FilePath
-) -> dict[str, Any]:
+async def file_metadata(service: Service, printer_id: str, filename: FilePath) -> dict[str, Any]:
     """What the slicer wrote in a file's header, as Moonraker parsed it."""
     return await service.file_metadata(printer_id, safe_path(filename))
 

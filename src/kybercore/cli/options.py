@@ -34,7 +34,7 @@ MdnsInterfaces = Annotated[
     typer.Option(
         "--mdns-interface",
         envvar="KYBERCORE_MDNS_INTERFACES",
-        help="The IP address of an interface \"Find printers\" browses for Moonraker's mDNS "
+        help='The IP address of an interface "Find printers" browses for Moonraker\'s mDNS '
         "announcements on; repeat it for more (default: every interface).",
         show_default=False,
     ),

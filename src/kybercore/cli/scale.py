@@ -144,8 +144,17 @@ async def _ingest(
     nc = await connect(url, f"kybercore-ingest-{name}")
     async with new_http_client() as http:
         worker = Worker(
-            nc, name, http, url=url, slots=slots, ttl=ttl, folder=folder, site=site,
-            grace=grace, database=database, local_leases=local_leases,
+            nc,
+            name,
+            http,
+            url=url,
+            slots=slots,
+            ttl=ttl,
+            folder=folder,
+            site=site,
+            grace=grace,
+            database=database,
+            local_leases=local_leases,
         )
         await worker.start()
         where = f" for site '{site}'" if site else ""
@@ -170,8 +179,9 @@ def front(
     lease_ttl: Annotated[
         float,
         typer.Option(
-            min=1.0, help="Seconds the dispatcher role lasts without renewal (one front "
-            "dispatches the queue; another takes over within about this)."
+            min=1.0,
+            help="Seconds the dispatcher role lasts without renewal (one front "
+            "dispatches the queue; another takes over within about this).",
         ),
     ] = 6.0,
     ws_compress: WsCompress = False,

@@ -21,6 +21,7 @@ tokens_app = typer.Typer(
     no_args_is_help=True,
 )
 
+
 def _store(printers_file: Path | None) -> TokenStore:
     return TokenStore(tokens_path_for(printers_file or default_printers_path()))
 

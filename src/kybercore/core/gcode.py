@@ -178,4 +178,3 @@ def first_move_outside(
                 if where[i][0] > where[i][1]:
                     where[i] = (low[i], high[i])
     return None
-

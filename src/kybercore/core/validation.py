@@ -59,7 +59,6 @@ LIMITED_ACTIONS: Final = frozenset({"start", "upload", "set_temperature", "gcode
 while the limits are not known. Never emergency stop, which must not wait for anything."""
 
 
-
 @dataclass(frozen=True)
 class Verdict:
     """The outcome of validation: the worst level among ``reasons`` ("ok" when none)."""

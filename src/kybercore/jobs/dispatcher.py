@@ -365,4 +365,3 @@ def _heats(job: Job) -> bool:
         (finite_number(meta.get(key)) or 0) > 0
         for key in ("first_layer_extr_temp", "first_layer_bed_temp")
     )
-

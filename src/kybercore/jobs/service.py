@@ -123,9 +123,7 @@ class QueueService:
             )
         return await self.store.create_job(new, user)
 
-    async def add_job_from_printer(
-        self, printer_id: str, path: str, **options: Any
-    ) -> Job:
+    async def add_job_from_printer(self, printer_id: str, path: str, **options: Any) -> Job:
         """Queue a file already on a printer (downloaded once, then stored here)."""
         content = await self.printers.download(printer_id, path)
         return await self.add_job(path.rsplit("/", 1)[-1], content, **options)

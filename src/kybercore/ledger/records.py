@@ -174,9 +174,7 @@ def iso(value: float | datetime | None) -> str | None:
     """A time as ISO-8601 UTC (``2026-03-01T10:00:00Z``); naive datetimes are UTC."""
     if value is None:
         return None
-    moment = (
-        value if isinstance(value, datetime) else datetime.fromtimestamp(float(value), UTC)
-    )
+    moment = value if isinstance(value, datetime) else datetime.fromtimestamp(float(value), UTC)
     if moment.tzinfo is None:
         moment = moment.replace(tzinfo=UTC)
     return moment.astimezone(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")

@@ -189,9 +189,7 @@ def _jobs_query(
     else:
         assert days is not None
         table = _days_table(days)
-        joined = joined.join(
-            table, and_(h.start_time >= table.c.d0, h.start_time < table.c.d1)
-        )
+        joined = joined.join(table, and_(h.start_time >= table.c.d0, h.start_time < table.c.d1))
         key = table.c.day
     return (
         select(

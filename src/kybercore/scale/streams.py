@@ -63,9 +63,7 @@ OPEN_SECONDS: Final = 30.0
 RELOAD: Final = "Reload the page to try the stream again."
 
 
-async def open_stream(
-    nc: Client, printer_id: str, name: str, *, epoch: int
-) -> RelayedStream:
+async def open_stream(nc: Client, printer_id: str, name: str, *, epoch: int) -> RelayedStream:
     """The front's side: the webcam ``name``'s stream, relayed by the printer's owner (its
     errors are raised here, as :func:`~kybercore.scale.commands.send_command` raises them)."""
     inbox = nc.new_inbox()

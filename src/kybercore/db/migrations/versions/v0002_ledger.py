@@ -46,9 +46,7 @@ def upgrade() -> None:
             nullable=True,
         ),
         sa.Column("updated_at", sa.Double, nullable=False),
-        sa.UniqueConstraint(
-            "printer", "instance", "moonraker_job_id", name="uq_history_jobs_job"
-        ),
+        sa.UniqueConstraint("printer", "instance", "moonraker_job_id", name="uq_history_jobs_job"),
     )
     op.create_index("ix_history_jobs_start", "history_jobs", ["start_time"])
     op.create_index("ix_history_jobs_printer_start", "history_jobs", ["printer", "start_time"])
@@ -62,9 +60,7 @@ def upgrade() -> None:
         sa.Column("started_at", sa.Double, nullable=False),
         sa.Column("ended_at", sa.Double, nullable=True),
     )
-    op.create_index(
-        "ix_printer_states_printer_open", "printer_states", ["printer", "ended_at"]
-    )
+    op.create_index("ix_printer_states_printer_open", "printer_states", ["printer", "ended_at"])
     op.create_index("ix_printer_states_started", "printer_states", ["started_at"])
 
 
