@@ -80,6 +80,26 @@ def travel_gcode(moves: int = 40, feedrate: int = 1200) -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
+def objects_gcode(moves: int = 40, feedrate: int = 1200) -> bytes:
+    """:func:`travel_gcode` as a slicer that labels objects writes it: two squares defined
+    for Klipper's ``[exclude_object]``, and the moves inside ``START``/``END`` blocks, in
+    turn (``PART_A`` around X 50-60, ``PART_B`` around X 100-110)."""
+    header, _, rest = travel_gcode(moves, feedrate).decode().partition("G90\n")
+    squares = {"PART_A": 50, "PART_B": 100}
+    defines = [
+        f"EXCLUDE_OBJECT_DEFINE NAME={name} CENTER={x + 5},55 "
+        f"POLYGON=[[{x},50],[{x + 10},50],[{x + 10},60],[{x},60]]"
+        for name, x in squares.items()
+    ]
+    lines = []
+    for line in rest.splitlines():
+        if line.startswith("G1 X"):
+            name = "PART_A" if " X50 " in f"{line} " else "PART_B"
+            line = f"EXCLUDE_OBJECT_START NAME={name}\n{line}\nEXCLUDE_OBJECT_END NAME={name}"
+        lines.append(line)
+    return "\n".join([header, *defines, "G90", *lines, ""]).encode()
+
+
 class KyberCoreServer:
     """A `kybercore serve` (or ``front``) subprocess on loopback, stoppable and restartable
     by tests."""

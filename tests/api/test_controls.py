@@ -1,17 +1,19 @@
 """What the printer page reads besides the live view: the printer's macros (from its real
-Klipper configuration) and whether its host serves Mainsail or Fluidd."""
+Klipper configuration), the running print's objects, and whether its host serves Mainsail
+or Fluidd."""
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
 
 import httpx
 import pytest
 
 from tests.api.conftest import StartEdge, add_printer
-from tests.helpers import KyberCoreServer
+from tests.helpers import KyberCoreServer, objects_gcode, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -74,3 +76,52 @@ def test_a_host_serving_mainsail_gets_its_link(edge_server: StartEdge, fake_main
     answer = httpx.get(f"{server.url}/api/printers/voron/web_ui", timeout=30)
     assert answer.status_code == 200, answer.text
     assert answer.json() == {"kind": "mainsail", "url": fake_mainsail}
+
+
+def test_the_prints_objects_come_from_klipper_and_one_is_excluded_by_gcode(
+    kybercore_server: KyberCoreServer,
+) -> None:
+    """A file whose slicer labelled its objects: the route lists them with their outlines
+    and says which is printing; EXCLUDE_OBJECT through the G-code route excludes one."""
+    with httpx.Client(base_url=kybercore_server.url, timeout=30) as api:
+        idle = api.get("/api/printers/fleet-b/objects")
+        assert idle.status_code == 200, idle.text
+        assert idle.json()["available"] is True  # the virtual printers have [exclude_object]
+        upload = api.post(
+            "/api/printers/fleet-b/files",
+            files={"file": ("objects.gcode", objects_gcode(60), "application/octet-stream")},
+            data={"start": "true", "confirm": "true"},
+        )
+        assert upload.status_code == 201, upload.text
+        assert upload.json()["started"] is True, upload.text
+        try:
+
+            def objects() -> dict[str, Any]:
+                answer = api.get("/api/printers/fleet-b/objects")
+                assert answer.status_code == 200, answer.text
+                found: dict[str, Any] = answer.json()
+                return found
+
+            wait_until(lambda: objects()["current"] is not None, what="an object printing")
+            found = objects()
+            assert [o["name"] for o in found["objects"]] == ["PART_A", "PART_B"]
+            assert found["objects"][1]["center"] == [105.0, 55.0]
+            assert found["objects"][1]["polygon"][2] == [110.0, 60.0]
+            assert found["excluded"] == []
+            script = {"script": "EXCLUDE_OBJECT NAME=PART_B"}
+            excluded = api.post("/api/printers/fleet-b/gcode", json=script)
+            assert excluded.status_code == 200, excluded.text
+            assert "Excluding object PART_B" in " ".join(excluded.json()["response"])
+            assert objects()["excluded"] == ["PART_B"]
+        finally:
+            api.post("/api/printers/fleet-b/actions/cancel", json={})
+            wait_until(
+                lambda: api.get("/api/printers/fleet-b").json()["job"]["state"] == "cancelled",
+                what="the print cancelled",
+            )
+
+
+def test_the_objects_of_an_unknown_printer_are_a_404(kybercore_server: KyberCoreServer) -> None:
+    answer = httpx.get(f"{kybercore_server.url}/api/printers/nope/objects", timeout=30)
+    assert answer.status_code == 404
+    assert "nope" in answer.json()["error"]["message"]

@@ -1,7 +1,8 @@
 """The reads a front makes through the printers' workers, against real processes (a
-nats-server, 2 ingest workers, a front, real virtual printers): the macros, the temperature
-graph, a thumbnail, the webcam list, a snapshot and the live stream answer as ``kybercore
-serve`` answers them, from what the printer's Moonraker and its camera really have."""
+nats-server, 2 ingest workers, a front, real virtual printers): the macros, the print's
+objects, the temperature graph, a thumbnail, the webcam list, a snapshot and the live
+stream answer as ``kybercore serve`` answers them, from what the printer's Moonraker and
+its camera really have."""
 
 from __future__ import annotations
 
@@ -59,6 +60,13 @@ def test_the_macros_are_those_of_klippers_configuration(
     assert by_name["PARK"] == "Move the toolhead to the back corner, clear of the part"
     missing = front.get("/nope/macros")
     assert (missing.status_code, missing.json()["error"]["code"]) == (404, "unknown_printer")
+
+
+def test_the_prints_objects_are_read_from_klipper_by_the_owner(front: httpx.Client) -> None:
+    # Idle: Klipper has [exclude_object] and no objects (a print defines them).
+    answer = front.get("/fleet-a/objects")
+    assert answer.status_code == 200, answer.text
+    assert answer.json() == {"available": True, "objects": [], "excluded": [], "current": None}
 
 
 def test_the_temperature_graph_follows_a_target_set_through_the_front(

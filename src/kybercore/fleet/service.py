@@ -379,6 +379,12 @@ class FleetService:
         status = await self.client(printer_id).objects_query({"configfile": ["config"]})
         return macros_of(status.get("configfile", {}).get("config", {}))
 
+    async def exclude_object_status(self, printer_id: str) -> dict[str, Any] | None:
+        """Klipper's ``exclude_object`` status, read now (None: Klipper has no such object)."""
+        status = await self.client(printer_id).objects_query({"exclude_object": None})
+        found = status.get("exclude_object")
+        return found if isinstance(found, dict) else None
+
     async def temperatures(self, printer_id: str, minutes: float) -> dict[str, Series]:
         """The printer's heaters over the last ``minutes``, from the in-memory ring (no
         request reaches the printer)."""

@@ -12,8 +12,8 @@ printers held by workers:
 - an uploaded file crosses in the ``kc_uploads`` object store, in chunks, and one command
   has the owner upload (and start) it (:mod:`.uploads`);
 - the reads that need the printer's Moonraker or its worker's memory are commands too: the
-  macros, the temperature graph, a file's thumbnail, the webcam list and a webcam's
-  snapshot (images in base64, refused with ``too_large_for_front`` above
+  macros, the print's objects, the temperature graph, a file's thumbnail, the webcam list
+  and a webcam's snapshot (images in base64, refused with ``too_large_for_front`` above
   :data:`~kybercore.scale.wire.MAX_IMAGE`: one NATS message must carry them);
 - a webcam's live MJPEG stream is relayed by the printer's owner, chunk by chunk, for as
   long as the browser reads it (:mod:`.streams`).
@@ -405,6 +405,11 @@ class FrontFleet(FleetService):
     async def macros(self, printer_id: str) -> list[Macro]:
         """The printer's G-code macros (its owner reads Klipper's configuration)."""
         return decode_macros(await self.command(printer_id, "macros"))
+
+    async def exclude_object_status(self, printer_id: str) -> dict[str, Any] | None:
+        """Klipper's ``exclude_object`` status (its owner reads it now)."""
+        found: dict[str, Any] | None = await self.command(printer_id, "exclude_object")
+        return found
 
     async def temperatures(self, printer_id: str, minutes: float) -> dict[str, Series]:
         """The printer's heaters over the last ``minutes`` (from its owner's ring)."""

@@ -62,6 +62,10 @@ async def _macros(service: FleetService, printer_id: str, args: dict[str, Any]) 
     return encode_macros(await service.macros(printer_id))
 
 
+async def _exclude_object(service: FleetService, printer_id: str, args: dict[str, Any]) -> Any:
+    return await service.exclude_object_status(printer_id)
+
+
 async def _temperatures(service: FleetService, printer_id: str, args: dict[str, Any]) -> Any:
     return await service.temperatures(printer_id, float(args["minutes"]))
 
@@ -109,6 +113,7 @@ OPS: Final[dict[str, Op]] = {
     "delete_file": _delete_file,
     "console_history": _console_history,
     "macros": _macros,
+    "exclude_object": _exclude_object,
     "temperatures": _temperatures,
     "thumbnail": _thumbnail,
     "cameras": _cameras,
