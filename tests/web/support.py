@@ -7,6 +7,7 @@ import functools
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, Final
 
 import httpx
 from playwright.sync_api import Locator, Page, expect
@@ -26,6 +27,25 @@ AXE = Path(__file__).resolve().parents[2] / "node_modules" / "axe-core" / "axe.m
 @functools.cache
 def _axe_script() -> str:
     return AXE.read_text()
+
+
+AXE_TAGS: Final = ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa", "wcag22aa", "best-practice"]
+BLOCKING: Final = ("serious", "critical")
+ALSO_BLOCKING: Final = ("landmark-one-main", "heading-order")
+"""Moderate rules that block too: every screen has one main landmark, headings in order."""
+
+
+def axe_violations(page: Page) -> list[dict[str, Any]]:
+    """axe-core's blocking violations on the page as it is: each with its rule, impact and
+    the first elements it names, so a failure says what to fix."""
+    inject_axe(page)
+    result = page.evaluate(
+        "async (tags) => (await axe.run(document, {runOnly: {type: 'tag', values: tags}}))"
+        ".violations.map(v => ({id: v.id, impact: v.impact, help: v.help,"
+        " nodes: v.nodes.slice(0, 3).map(n => n.target.join(' ') + ' :: ' + n.failureSummary)}))",
+        AXE_TAGS,
+    )
+    return [v for v in result if v["impact"] in BLOCKING or v["id"] in ALSO_BLOCKING]
 
 
 def inject_axe(page: Page) -> None:

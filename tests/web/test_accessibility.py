@@ -18,14 +18,9 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.helpers import KyberCoreServer
-from tests.web.support import AXE, inject_axe, open_fleet, start_print, tile
+from tests.web.support import AXE, axe_violations, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
-
-TAGS: Final = ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa", "wcag22aa", "best-practice"]
-BLOCKING: Final = ("serious", "critical")
-ALSO_BLOCKING: Final = ("landmark-one-main", "heading-order")
-"""Moderate rules that block too: every screen has one main landmark, headings in order."""
 
 
 def _fleet_tiles(page: Page) -> None:
@@ -108,17 +103,6 @@ SCREENS: Final[dict[str, Callable[[Page], None]]] = {
 }
 
 
-def _violations(page: Page) -> list[dict[str, Any]]:
-    inject_axe(page)
-    result = page.evaluate(
-        "async (tags) => (await axe.run(document, {runOnly: {type: 'tag', values: tags}}))"
-        ".violations.map(v => ({id: v.id, impact: v.impact, help: v.help,"
-        " nodes: v.nodes.slice(0, 3).map(n => n.target.join(' ') + ' :: ' + n.failureSummary)}))",
-        TAGS,
-    )
-    return [v for v in result if v["impact"] in BLOCKING or v["id"] in ALSO_BLOCKING]
-
-
 WALK_TIMEOUT: Final = 600
 """Seconds one walk over every screen may take: ~60-100 s on an idle machine, several times
 that on a shared, busy one (pytest's own 120 s default would kill the browser mid-walk)."""
@@ -155,7 +139,7 @@ def test_every_screen_has_no_serious_accessibility_violation(
         show(page)
         for theme in THEMES:
             _switch_theme(page, theme)
-            violations = _violations(page)
+            violations = axe_violations(page)
             if violations:
                 found[f"{name} ({theme})"] = violations
         page.context.close()

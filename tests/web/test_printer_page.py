@@ -12,8 +12,8 @@ import httpx
 import pytest
 from playwright.sync_api import Locator, Page, expect
 
-from tests.helpers import KyberCoreServer, wait_until
-from tests.web.support import ARTIFACTS, make_idle, open_fleet, start_print, tile
+from tests.helpers import KyberCoreServer, objects_gcode, wait_until
+from tests.web.support import ARTIFACTS, axe_violations, make_idle, open_fleet, start_print, tile
 
 pytestmark = pytest.mark.browser
 
@@ -165,6 +165,55 @@ def test_the_print_card_follows_a_print_and_pauses_resumes_and_cancels_it(
     expect(cancel).to_be_disabled()
 
 
+def test_an_object_of_the_print_is_excluded_from_the_page_after_a_confirmation(
+    page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
+) -> None:
+    """Mainsail's "exclude object": the print's labelled objects on a map of the bed and
+    in a list; excluding one asks first, then Klipper skips it."""
+    make_idle(kybercore_server, api)
+    upload = api.post(
+        "/api/printers/fleet-b/files",
+        files={"file": ("two_parts.gcode", objects_gcode(80), "application/octet-stream")},
+        data={"start": "true", "confirm": "true"},
+    )
+    assert upload.json()["started"] is True, upload.text
+    try:
+        section = open_page(page, kybercore_server.url, "fleet-b", "Printer B")
+        objects = section.locator("#pp-objects")
+        expect(objects.get_by_role("heading", name="Objects")).to_be_visible()
+        rows = objects.locator(".pp-objects-list li")
+        expect(rows.locator(".pp-object-name")).to_have_text(["PART_A", "PART_B"])
+        expect(objects.get_by_role("img", name="The bed with the print's objects")).to_be_visible()
+        expect(objects.locator(".pp-objects-map polygon")).to_have_count(2)
+        expect(objects.locator(".is-current")).to_have_count(1, timeout=15_000)
+
+        exclude = objects.get_by_role("button", name="Exclude PART_B")
+        exclude.click()
+        dialog = page.get_by_role("dialog", name="Exclude PART_B from the print on Printer B?")
+        dialog.get_by_role("button", name="Back").click()
+        expect(dialog).to_be_hidden()
+        assert api.get("/api/printers/fleet-b/objects").json()["excluded"] == []
+        exclude.click()
+        dialog.get_by_role("button", name="Exclude object").click()
+        expect(page.locator(".toast.ok", has_text="PART_B excluded")).to_be_visible()
+        assert api.get("/api/printers/fleet-b/objects").json()["excluded"] == ["PART_B"]
+        part_b = objects.locator('li[data-object="PART_B"]')
+        expect(part_b.locator(".pp-object-state")).to_have_text("Excluded", timeout=15_000)
+        expect(exclude).to_be_disabled()
+        expect(objects.locator(".pp-objects-map polygon.excluded")).to_have_count(1)
+        objects.screenshot(path=str(ARTIFACTS / "printer-page-objects.png"))
+        assert axe_violations(page) == []  # as every screen in test_accessibility
+
+        page.locator("#lang").select_option("es")
+        expect(objects.get_by_role("heading", name="Objetos")).to_be_visible()
+        expect(part_b.locator(".pp-object-state")).to_have_text("Excluido")
+        page.locator("#lang").select_option("en")
+    finally:
+        api.post("/api/printers/fleet-b/actions/cancel", json={})
+    wait_until(lambda: view(api, "fleet-b")["job"]["state"] == "cancelled", what="cancelled")  # type: ignore[index]
+    expect(section.locator("#pp-objects")).to_be_hidden()
+
+
 def test_after_an_estop_one_click_restarts_the_firmware(
     page: Page, kybercore_server: KyberCoreServer, api: httpx.Client
 ) -> None:
@@ -174,10 +223,14 @@ def test_after_an_estop_one_click_restarts_the_firmware(
     section.get_by_role("button", name="Emergency stop").click()  # one click, no dialog
     expect(restart).to_be_visible(timeout=30_000)
     assert view(api, "fleet-c")["klippy_state"] == "shutdown"
-    expect(section.locator(".pp-hint").first).to_have_text(
-        "The printer is not ready: nothing can move."
-    )
-    restart.click()
+    try:
+        expect(section.locator("#pp-toolhead .pp-hint")).to_have_text(
+            "The printer is not ready: nothing can move."
+        )
+        restart.click()
+    finally:  # the next tests need the printer ready, whatever this one found
+        if view(api, "fleet-c")["klippy_state"] == "shutdown":
+            api.post("/api/printers/fleet-c/actions/firmware_restart", json={})
     wait_until(lambda: view(api, "fleet-c")["klippy_state"] == "ready", timeout=60, what="ready")
     expect(restart).to_be_hidden()
 

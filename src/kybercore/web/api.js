@@ -91,6 +91,7 @@ export const api = {
   // The ledger: history, statistics, temperatures (query: an object of filters).
   // The printer page: its macros, and Mainsail/Fluidd on its host.
   macros: (id) => request("GET", `${printer(id)}/macros`),
+  printObjects: (id) => request("GET", `${printer(id)}/objects`),
   webUi: (id) => request("GET", `${printer(id)}/web_ui`),
   webcams: (id) => request("GET", `${printer(id)}/webcams`),
   discover: (seconds) => request("GET", `/api/discovery?seconds=${seconds}`),

@@ -99,6 +99,13 @@ const PATHS = {
 const SOLID = new Set(["pause", "resume", "cancel", "start", "bolt"]);
 
 /** An inline SVG icon, hidden from assistive tech (the button carries the label). */
+/** An SVG element with its attributes (set as given: SVG has no properties to prefer). */
+export function svgEl(tag, attrs = {}) {
+  const el = document.createElementNS("http://www.w3.org/2000/svg", tag);
+  for (const [key, value] of Object.entries(attrs)) el.setAttribute(key, String(value));
+  return el;
+}
+
 export function icon(name) {
   const svg = document.createElementNS("http://www.w3.org/2000/svg", "svg");
   svg.setAttribute("viewBox", "0 0 24 24");

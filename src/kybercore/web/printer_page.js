@@ -12,6 +12,7 @@ import * as fmt from "./format.js";
 import { onLangChange, t } from "./i18n.js";
 import { buildControls, card, updateControls } from "./printer_controls.js";
 import { JobCard } from "./printer_job.js";
+import { ObjectsCard } from "./printer_objects.js";
 import { onQueueChange } from "./queue_data.js";
 import { can } from "./session.js";
 import { printers, serverNow, statusOf, subscribe } from "./store.js";
@@ -65,10 +66,13 @@ function init(el) {
   onQueueChange((change) => {
     if (els && change.gates.has(els.id)) update();
   });
-  // A printer gone quiet sends nothing: the age of its data grows without a frame.
+  // A printer gone quiet (or paused) sends nothing: the age of its data grows without a
+  // frame, and the print's objects are read again all the same.
   setInterval(() => {
     const p = els && printers.get(els.id);
-    if (p) els.job.updateStale(p, serverNow());
+    if (!p) return;
+    els.job.updateStale(p, serverNow());
+    els.objects.update(p);
   }, 1000);
   return el;
 }
@@ -119,7 +123,8 @@ function build(id) {
   webcam.hidden = true; // shown by renderWebcam when the printer has a webcam
   const controls = buildControls(id);
   const job = new JobCard(id, card);
-  els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam, job };
+  const objects = new ObjectsCard(id, card);
+  els = { id, title, pill, meta, webUi, restart, estop, message, heaters, rows: {}, controls, webcam, job, objects };
   for (const [view, , label] of HEATERS) heaters.append(heaterRow(id, view, label));
   root.replaceChildren(
     h("header", { class: "pp-head" }, back, h("div", { class: "pp-title-box" }, title, meta), pill, h("span", { class: "pp-head-actions" }, webUi, restart, estop)),
@@ -128,6 +133,7 @@ function build(id) {
       "div",
       { class: "pp-grid" },
       job.el,
+      objects.el,
       card("pp-temps", t("pp.temps"), graph, h("table", { class: "pp-heaters" }, h("thead", {}, h("tr", {}, ...["pp.heater", "pp.current", "pp.target", "pp.power"].map((k) => h("th", { scope: "col", text: t(k) })), h("th", { scope: "col", text: t("pp.set") }))), heaters)),
       ...controls.cards,
       webcam,
@@ -196,6 +202,7 @@ function update() {
   }
   updateControls(els.controls, p);
   els.job.update(p);
+  els.objects.update(p);
 }
 
 /** Run an action; the e-stop and the firmware restart here are one click (nothing to lose:
