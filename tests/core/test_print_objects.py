@@ -35,6 +35,7 @@ def test_what_a_peer_may_send_instead_is_left_out() -> None:
         "objects": [
             {"name": "", "center": [1, 2]},
             {"name": "TWO WORDS"},  # would not be one EXCLUDE_OBJECT NAME= parameter
+            {"name": "A;B"},  # would exclude A
             {"name": 7},
             "CUBE",
             {"name": "OK", "center": [True, 2], "polygon": [[1, math.nan], [1], "x", [3, 4]]},

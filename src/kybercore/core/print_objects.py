@@ -55,7 +55,13 @@ def _list(value: Any) -> list[Any]:
 
 
 def _is_name(value: Any) -> bool:
-    return isinstance(value, str) and bool(value) and not any(c.isspace() for c in value)
+    """One ``NAME=`` parameter of a G-code line: no space, and no ``;`` (a comment)."""
+    return (
+        isinstance(value, str)
+        and bool(value)
+        and ";" not in value
+        and not any(c.isspace() for c in value)
+    )
 
 
 def _point(value: Any) -> Point | None:

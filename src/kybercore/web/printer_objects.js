@@ -83,6 +83,7 @@ export class ObjectsCard {
           text: t("pp.objects.exclude"),
           "aria-label": t("pp.objects.exclude_one", { object: o.name }),
           disabled: out || !operator,
+          title: operator ? undefined : `${t("pp.objects.exclude")} — ${t("session.needs_operator")}`,
           onclick: () => this.exclude(o.name),
         });
         return h("li", { class: out ? "is-excluded" : o.name === data.current ? "is-current" : "", dataset: { object: o.name } }, h("span", { class: "pp-object-name", text: o.name }), h("span", { class: "pp-object-state", text: state }), button);
