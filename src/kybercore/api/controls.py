@@ -72,15 +72,7 @@ async def print_objects(service: Service, printer_id: str) -> PrintObjectsOut:
     """The running print's objects, read from Klipper now. Excluding one goes through the
     validated G-code route: ``EXCLUDE_OBJECT NAME=<name>``."""
     found = print_objects_of(await service.exclude_object_status(printer_id))
-    return PrintObjectsOut(
-        available=found.available,
-        objects=[
-            PrintObjectOut(name=o.name, center=o.center, polygon=list(o.polygon))
-            for o in found.objects
-        ],
-        excluded=list(found.excluded),
-        current=found.current,
-    )
+    return PrintObjectsOut.model_validate(found, from_attributes=True)
 
 
 @router.get(
