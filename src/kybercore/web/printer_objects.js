@@ -6,7 +6,7 @@
 import { api } from "./api.js";
 import { consoleCommand } from "./console.js";
 import { confirmDialog, toast } from "./dialogs.js";
-import { h, setHidden, setText, svgEl } from "./dom.js";
+import { h, setAttr, setHidden, setText, svgEl } from "./dom.js";
 import { messageOf, t } from "./i18n.js";
 import { can } from "./session.js";
 
@@ -23,6 +23,9 @@ export class ObjectsCard {
     this.file = null;
     this.readAt = 0;
     this.reading = false;
+    this.names = null;
+    /** @type {Map<string, {el: HTMLElement, state: HTMLElement, button: HTMLButtonElement}>} */
+    this.rows = new Map();
     this.map = svgEl("svg", { class: "pp-objects-map", role: "img", "aria-label": t("pp.objects.map") });
     this.list = h("ul", { class: "pp-objects-list" });
     this.mapBox = h("div", { class: "pp-objects-mapbox" }, this.map); // SVG has no `hidden`
@@ -52,43 +55,58 @@ export class ObjectsCard {
     if (this.reading) return;
     this.reading = true;
     this.readAt = Date.now();
+    let problem = "";
     try {
       this.data = await api.printObjects(this.id);
-      setText(this.note, "");
     } catch (error) {
-      setText(this.note, messageOf(error));
+      problem = messageOf(error);
     } finally {
       this.reading = false;
     }
-    if (this.file !== null) this.render(p);
+    if (this.file !== null) this.render(p, problem);
   }
 
-  render(p) {
+  /** Show what was last read; `problem`: why the latest read failed, if it did. */
+  render(p, problem) {
     const data = this.data || { available: true, objects: [], excluded: [], current: null };
-    this.el.hidden = false;
     const objects = data.objects;
-    if (!data.available) setText(this.note, t("pp.objects.unavailable"));
-    else if (!objects.length) setText(this.note, t("pp.objects.none"));
+    this.el.hidden = false;
+    if (problem) setText(this.note, problem);
+    else if (!data.available) setText(this.note, t("pp.objects.unavailable"));
+    else setText(this.note, objects.length ? "" : t("pp.objects.none"));
     setHidden(this.mapBox, !objects.length);
     const excluded = new Set(/** @type {string[]} */ (data.excluded));
     this.drawMap(p, objects, excluded, data.current);
+    // The rows are built once per set of objects and then updated in place, so a keyboard
+    // user's focus stays on its button while the object printing now changes.
+    const names = objects.map((o) => o.name).join("\n");
+    if (names !== this.names) {
+      this.names = names;
+      this.rows = new Map(objects.map((o) => [o.name, this.row(o.name)]));
+      this.list.replaceChildren(...[...this.rows.values()].map((row) => row.el));
+    }
     const operator = can("operator");
-    this.list.replaceChildren(
-      ...objects.map((o) => {
-        const out = excluded.has(o.name);
-        const state = out ? t("pp.objects.excluded") : o.name === data.current ? t("pp.objects.current") : "";
-        const button = h("button", {
-          type: "button",
-          class: "btn small danger",
-          text: t("pp.objects.exclude"),
-          "aria-label": t("pp.objects.exclude_one", { object: o.name }),
-          disabled: out || !operator,
-          title: operator ? undefined : `${t("pp.objects.exclude")} — ${t("session.needs_operator")}`,
-          onclick: () => this.exclude(o.name),
-        });
-        return h("li", { class: out ? "is-excluded" : o.name === data.current ? "is-current" : "", dataset: { object: o.name } }, h("span", { class: "pp-object-name", text: o.name }), h("span", { class: "pp-object-state", text: state }), button);
-      }),
-    );
+    for (const [name, row] of this.rows) {
+      const out = excluded.has(name);
+      const now = !out && name === data.current;
+      row.el.className = out ? "is-excluded" : now ? "is-current" : "";
+      setText(row.state, out ? t("pp.objects.excluded") : now ? t("pp.objects.current") : "");
+      row.button.disabled = out || !operator;
+      setAttr(row.button, "title", operator ? null : `${t("pp.objects.exclude")} — ${t("session.needs_operator")}`);
+    }
+  }
+
+  row(name) {
+    const state = h("span", { class: "pp-object-state" });
+    const button = h("button", {
+      type: "button",
+      class: "btn small danger",
+      text: t("pp.objects.exclude"),
+      "aria-label": t("pp.objects.exclude_one", { object: name }),
+      onclick: () => this.exclude(name),
+    });
+    const el = h("li", { dataset: { object: name } }, h("span", { class: "pp-object-name", text: name }), state, button);
+    return { el, state, button };
   }
 
   /** The bed (its size from the printer's limits) seen from above, front at the bottom. */
